@@ -1,0 +1,44 @@
+"""The ``polartrack`` command line: one sub-command per module in :mod:`common.commands`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from common.commands import bench, match
+
+COMMANDS = {"match": match, "bench": bench}
+
+
+class UsageError(Exception):
+    """A bad flag, path or file: reported as one line on stderr with exit status 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="polartrack",
+        description="Track a known ground vehicle in aerial video (DTCWT polar matching).",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, module in COMMANDS.items():
+        p = sub.add_parser(name, help=module.HELP, description=module.__doc__)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except UsageError as exc:
+        print(f"polartrack {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

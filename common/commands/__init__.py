@@ -1,0 +1,1 @@
+"""Sub-commands of the ``polartrack`` command line, one module each."""
