@@ -1,0 +1,169 @@
+"""Nelson et al. (2008) SIR particle filter (§III-B..E).
+
+Same state and dynamics as the RBPF, but the visibility V_t is *sampled* per
+particle from the Markov chain instead of being marginalised:
+
+    X_{t,p} ~ N(F X_{t-1,p}, Q_w),  theta_{t,p} ~ N(theta_{t-1,p}, S_theta),  V_{t,p} ~ p(V_t | V_{t-1,p})
+    w_{t,p} ∝ w_{t-1,p} p(z_t | X_{t,p})                                       (eq. 18, prior proposal)
+    p(z_t | X_t) = exp(k * Pi(H(x_t, y_t), theta_t)) if V_t = 1, exp(NV_c) otherwise   (eq. 15)
+
+with resampling (systematic) when N_eff < N_thr and p(V_t = 1 | Z_1:t) ≈ sum_p w_{t,p} V_{t,p}.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from . import resampling
+from ._frames import FrameClock, make_rng
+from .camera import world_to_image
+from .likelihood import ExponentialScoreLikelihood, LikelihoodModel
+from .motion import NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain
+from .observation import FrameObservation, inside_image_log_prior, sanitise_scores
+from .state import InitialState, TrackState, summarise_particles
+
+
+class SIRConfig(BaseModel):
+    """Parameters of the SIR filter; defaults are Nelson 2008 Table I where it gives them."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    n_particles: int = Field(300, ge=1, description="Number of particles. Nelson 2008 Table I: 300.")
+    ess_threshold_fraction: float = Field(
+        0.9,
+        ge=0.0,
+        le=1.0,
+        description="Resample when N_eff < fraction * N. Nelson 2008 §III-E resamples below an unstated N_thr; "
+        "0.9 is Pang 2010 Table 1's 180/200. 1.0 resamples after every informative frame (classic SIR).",
+    )
+    motion: NearConstantVelocity = Field(
+        default_factory=lambda: NearConstantVelocity(q_x=1600.0, q_y=1600.0),
+        description="S_t dynamics (Nelson eqs. 10-12). Nelson 2008 Table I: S_x = S_y = 1600 (units unstated; "
+        "taken as world-units^2/s^3).",
+    )
+    orientation: OrientationRandomWalk = Field(
+        default_factory=OrientationRandomWalk,
+        description="theta random walk. Nelson 2008 gives no S_theta; default Pang 2010 Table 1, 16 deg^2 per frame.",
+    )
+    visibility: VisibilityMarkovChain = Field(
+        default_factory=lambda: VisibilityMarkovChain(p_nv=0.1, p_v=0.25),
+        description="V_t Markov chain (Nelson eqs. 13-14). Nelson 2008 Table I: P_NV = 0.1, P_V = 0.25.",
+    )
+    likelihood: LikelihoodModel = Field(
+        default_factory=ExponentialScoreLikelihood,
+        description="p(z_t | X_t) (Nelson eq. 15; Table I: k = 5, NV_c = 0.2).",
+    )
+    confine_to_image: bool = Field(
+        True,
+        description="Pang 2010 §3 assumes the target always lies within the video frame: a particle whose image "
+        "position is outside [0, W-1] x [0, H-1] gets zero weight (skipped for a frame where every particle is "
+        "outside, and on frames without an observation). False: such particles are only scored (0 there).",
+    )
+    resampling: Literal["systematic", "stratified", "multinomial", "residual"] = Field(
+        "systematic", description="Resampling scheme (Nelson 2008 §III-E: systematic)."
+    )
+
+
+class SIRParticleFilter:
+    """Nelson 2008 SIR filter with sampled visibility. ``step(frame_time, observation)`` -> :class:`TrackState`.
+
+    All randomness comes from ``self.rng``, made from ``seed``. One ``score_at`` call per observed frame.
+    """
+
+    def __init__(
+        self,
+        config: SIRConfig | None,
+        initial: InitialState,
+        seed: int | np.random.SeedSequence | np.random.Generator = 0,
+    ) -> None:
+        """``config`` None means :class:`SIRConfig` defaults; ``initial`` is the prior (world frame)."""
+        self.config = config if config is not None else SIRConfig()
+        self.rng = make_rng(seed)
+        n = self.config.n_particles
+        self.particles = initial.sample_particles(n, self.rng)
+        self.visible = (self.rng.random(n) < initial.p_visible).astype(np.int8)  # V_0 ~ Bernoulli(p_visible)
+        self.log_w = np.full(n, -np.log(n))
+        self.clock = FrameClock(initial.time)
+        self._resample = resampling.get_scheme(self.config.resampling)
+
+    @classmethod
+    def from_image_box(
+        cls,
+        config: SIRConfig | None,
+        box_xyxy: tuple[float, float, float, float],
+        first_observation: FrameObservation,
+        seed: int | np.random.SeedSequence | np.random.Generator = 0,
+        **initial_kwargs,
+    ) -> "SIRParticleFilter":
+        """Start on the centre of an image box of the first frame (through its homography)."""
+        initial = InitialState.from_image_box(box_xyxy, first_observation.homography, **initial_kwargs)
+        return cls(config, initial, seed)
+
+    @property
+    def n_particles(self) -> int:
+        return len(self.particles)
+
+    @property
+    def weights(self) -> np.ndarray:
+        return resampling.weights_from_log(self.log_w)
+
+    def predict(self, dt: float) -> None:
+        """Draw order: 4N normals (X), N normals (theta), N uniforms (V)."""
+        cfg = self.config
+        self.particles[:, :4] = cfg.motion.sample(self.particles[:, :4], dt, self.rng)
+        self.particles[:, 4] = cfg.orientation.sample(self.particles[:, 4], dt, self.rng)
+        self.visible = cfg.visibility.sample(self.visible, self.rng)
+
+    def step(self, frame_time: float, observation: FrameObservation | None) -> TrackState:
+        cfg = self.config
+        dt = self.clock.advance(frame_time)
+        if dt > 0:
+            self.predict(dt)
+        h = self.clock.see(observation)
+        image_xy = world_to_image(h, self.particles[:, [0, 2]])
+
+        log_lik = 0.0
+        if observation is not None:
+            hyps = np.column_stack([image_xy, self.particles[:, 4]])
+            scores, _valid = sanitise_scores(*observation.score_at(hyps), self.n_particles)
+            ll = cfg.likelihood.log_likelihood(scores)  # (N, 2), columns V = 0, 1
+            log_w = self.log_w + ll[np.arange(self.n_particles), self.visible]
+            if cfg.confine_to_image:
+                log_w = log_w + inside_image_log_prior(image_xy, observation.image_size)
+            log_lik = resampling.logsumexp(log_w)
+            self.log_w = log_w - log_lik
+
+        w = self.weights
+        n_eff = resampling.ess(w)
+        v = self.visible.astype(float)
+        i_map, map_est, mmse_est = summarise_particles(self.particles, image_xy, w)
+        do_resample = n_eff < cfg.ess_threshold_fraction * self.n_particles
+        state = TrackState(
+            time=float(frame_time),
+            observed=observation is not None,
+            map_estimate=map_est,
+            mmse_estimate=mmse_est,
+            p_visible=float(np.clip(w @ v, 0.0, 1.0)),
+            n_eff=n_eff,
+            speed=map_est.speed,
+            orientation=map_est.theta,
+            particles=self.particles,
+            particles_image=image_xy,
+            particle_visibility=v,
+            weights=w,
+            resampled=do_resample,
+            log_likelihood=float(log_lik),
+            score=None if observation is None else float(scores[i_map]),
+        )
+        if do_resample:
+            idx = self._resample(w, self.rng)
+            self.particles = self.particles[idx]
+            self.visible = self.visible[idx]
+            self.log_w = np.full(self.n_particles, -np.log(self.n_particles))
+        return state
+
+
+SIR = SIRParticleFilter

@@ -1,0 +1,202 @@
+"""Filter inputs and outputs: :class:`InitialState` (the prior) and :class:`TrackState` (per frame).
+
+Particle arrays use the column order of Pang's state S_t without V:
+``[x, vx, y, vy, theta]`` (world units, world units/s, degrees); see
+:data:`PARTICLE_COLUMNS`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from .camera import image_to_world
+from .motion import wrap_degrees
+
+PARTICLE_COLUMNS = ("x", "vx", "y", "vy", "theta")
+"""Columns of a particle array: world position/velocity (Pang's X_t) and image-plane orientation (degrees)."""
+
+
+@dataclass(frozen=True)
+class InitialState:
+    """The prior at ``time``: independent Gaussians about a world-frame state.
+
+    World units are metres when the observations carry a homography, pixels otherwise.
+    A std of 0 puts every particle exactly at the mean.
+    """
+
+    x: float
+    y: float
+    vx: float = 0.0
+    vy: float = 0.0
+    theta: float = 0.0
+    """Orientation relative to the template, degrees (0: the template's own orientation)."""
+    p_visible: float = 1.0
+    """p(V_0 = 1); Pang's filter starts on a visible, hand-marked target."""
+    time: float | None = None
+    """Time of the prior, seconds; None: the time of the first step (which then does not predict)."""
+    pos_std: float = 0.0
+    vel_std: float = 0.0
+    theta_std: float = 0.0
+
+    @classmethod
+    def from_image_point(
+        cls, image_xy: tuple[float, float], homography: np.ndarray | None, **kwargs
+    ) -> "InitialState":
+        """Prior centred on the ground point seen at image pixel ``image_xy`` through ``homography``
+        (world -> image, e.g. the first frame's; None = identity). Other fields by keyword."""
+        wx, wy = image_to_world(homography, np.asarray(image_xy, dtype=float))
+        return cls(x=float(wx), y=float(wy), **kwargs)
+
+    @classmethod
+    def from_image_box(
+        cls, box_xyxy: tuple[float, float, float, float], homography: np.ndarray | None, **kwargs
+    ) -> "InitialState":
+        """Prior centred on the centre of the image box ``(x_min, y_min, x_max, y_max)`` (pixels)."""
+        x0, y0, x1, y1 = box_xyxy
+        return cls.from_image_point((0.5 * (x0 + x1), 0.5 * (y0 + y1)), homography, **kwargs)
+
+    def sample_particles(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """n particles (n, 5) [x, vx, y, vy, theta] drawn from the prior (5n standard normals)."""
+        mean = np.array([self.x, self.vx, self.y, self.vy, self.theta], dtype=float)
+        std = np.array([self.pos_std, self.vel_std, self.pos_std, self.vel_std, self.theta_std], dtype=float)
+        particles = mean + std * rng.standard_normal((n, 5))
+        particles[:, 4] = wrap_degrees(particles[:, 4])
+        return particles
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One point estimate of the target state."""
+
+    x: float
+    """World x (m, or px with no homography)."""
+    y: float
+    vx: float
+    """World velocity (world units / s)."""
+    vy: float
+    theta: float
+    """Image-plane orientation relative to the template, degrees in [-180, 180), anticlockwise as displayed."""
+    image_x: float
+    """Image position, pixels."""
+    image_y: float
+
+    @property
+    def speed(self) -> float:
+        """|v| in world units / s."""
+        return math.hypot(self.vx, self.vy)
+
+    @property
+    def world_xy(self) -> np.ndarray:
+        return np.array([self.x, self.y])
+
+    @property
+    def image_xy(self) -> np.ndarray:
+        return np.array([self.image_x, self.image_y])
+
+
+def _readonly(a: np.ndarray | None) -> np.ndarray | None:
+    if a is None:
+        return None
+    a = np.array(a, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class TrackState:
+    """What a tracker reports for one frame.
+
+    For the particle filters the estimates, ``n_eff`` and the particle arrays are
+    those of the weighted posterior *before* any resampling of this step (the
+    ``resampled`` flag says whether resampling followed).
+    """
+
+    time: float
+    """Frame time, seconds."""
+    observed: bool
+    """False when the step had no observation (prediction only)."""
+    map_estimate: Estimate
+    """MAP estimate: the highest-weight particle (Pang §8 'RBPF MAP estimate'); for windowed ML the arg-max."""
+    mmse_estimate: Estimate
+    """MMSE estimate: weighted mean (circular mean for theta; image position = weighted mean of the
+    particles' image positions)."""
+    p_visible: float
+    """p(V_t = 1 | Z_1:t) (Pang eq. A.5); windowed ML: 1.0 if its max score reached the threshold, else 0.0."""
+    n_eff: float
+    """Effective sample size 1 / sum W^2 (Pang eq. 23); NaN for windowed ML."""
+    speed: float
+    """|v| of the MAP estimate, world units / s (Pang Fig. 6d)."""
+    orientation: float
+    """theta of the MAP estimate, degrees (Pang Fig. 6e)."""
+    particles: np.ndarray | None = None
+    """(N, 5) [x, vx, y, vy, theta] world-frame particles; None for windowed ML."""
+    particles_image: np.ndarray | None = None
+    """(N, 2) image positions of the particles, pixels."""
+    particle_visibility: np.ndarray | None = None
+    """(N,) RBPF: p(V_t = 1 | particle history, Z_1:t); SIR: the sampled V_t (0.0 / 1.0)."""
+    weights: np.ndarray | None = None
+    """(N,) normalised weights, summing to 1."""
+    resampled: bool = False
+    """Whether the particles were resampled after this frame's estimates."""
+    log_likelihood: float = float("nan")
+    """log p(Z_t | Z_1:t-1) estimated by the particles, up to a frame constant (Pang's Omega); 0 if unobserved."""
+    score: float | None = None
+    """Raw detector score at the MAP hypothesis (windowed ML: the window maximum); None if unobserved."""
+    search_window: tuple[float, float, int] | None = None
+    """Windowed ML only: (centre x, centre y, side) of this frame's search window, pixels."""
+
+    def __post_init__(self) -> None:
+        for name in ("particles", "particles_image", "particle_visibility", "weights"):
+            object.__setattr__(self, name, _readonly(getattr(self, name)))
+
+    def identical(self, other: "TrackState") -> bool:
+        """Bit-for-bit equality of every field (NaN equals NaN)."""
+        for f in fields(self):
+            a, b = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray)):
+                    return False
+                if a.shape != b.shape or a.dtype != b.dtype:
+                    return False
+                if not np.array_equal(a, b, equal_nan=a.dtype.kind == "f"):
+                    return False
+            elif isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+                continue
+            elif a != b:
+                return False
+        return True
+
+
+def summarise_particles(
+    particles: np.ndarray, image_xy: np.ndarray, weights: np.ndarray
+) -> tuple[int, Estimate, Estimate]:
+    """(index of the MAP particle, MAP estimate, MMSE estimate) of a weighted particle set.
+
+    MAP: the particle of highest weight; ties (e.g. uniform weights after a resample
+    and an unobserved frame) go to the tied particle nearest the MMSE world position,
+    then to the lowest index. MMSE: weighted means, theta as the circular mean.
+    """
+    w = np.asarray(weights, dtype=float)
+    mean = w @ particles
+    ang = np.deg2rad(particles[:, 4])
+    mean_theta = float(wrap_degrees(np.rad2deg(np.arctan2(w @ np.sin(ang), w @ np.cos(ang)))))
+    mean_img = w @ image_xy
+    mmse = Estimate(
+        x=float(mean[0]), y=float(mean[2]), vx=float(mean[1]), vy=float(mean[3]), theta=mean_theta,
+        image_x=float(mean_img[0]), image_y=float(mean_img[1]),
+    )  # fmt: skip
+    tied = np.flatnonzero(w >= w.max() * (1.0 - 1e-12))
+    if tied.size > 1:
+        d2 = (particles[tied, 0] - mean[0]) ** 2 + (particles[tied, 2] - mean[2]) ** 2
+        i = int(tied[np.argmin(d2)])
+    else:
+        i = int(tied[0])
+    p = particles[i]
+    map_ = Estimate(
+        x=float(p[0]), y=float(p[2]), vx=float(p[1]), vy=float(p[3]), theta=float(p[4]),
+        image_x=float(image_xy[i, 0]), image_y=float(image_xy[i, 1]),
+    )  # fmt: skip
+    return i, map_, mmse
