@@ -160,9 +160,11 @@ def test_exponential_likelihood():
     assert (lik.k, lik.nv_c) == (5.0, 0.2)  # Nelson Table I
     s = np.array([-0.4, 0.0, 0.3, 0.95])
     ll = lik.log_likelihood(s)
-    assert np.allclose(ll[:, 1], 5.0 * s) and np.allclose(ll[:, 0], 0.2)
-    ll2 = ExponentialScoreLikelihood(nv_c_on_score_scale=True).log_likelihood(s)
-    assert np.allclose(ll2[:, 0], 1.0)
+    # default: NV_c on the score scale (the paper's prose): occluded term exp(k * NV_c)
+    assert np.allclose(ll[:, 1], 5.0 * s) and np.allclose(ll[:, 0], 1.0)
+    # eq. 15 as printed: exp(NV_c)
+    ll2 = ExponentialScoreLikelihood(nv_c_on_score_scale=False).log_likelihood(s)
+    assert np.allclose(ll2[:, 0], 0.2) and np.allclose(ll2[:, 1], 5.0 * s)
 
 
 # ----------------------------------------------------------------------------- camera

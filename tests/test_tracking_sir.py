@@ -62,8 +62,9 @@ def test_sir_deterministic_and_one_call_per_frame():
 
 
 def test_sir_weight_update_is_eq_15():
-    """One step from equal weights, no motion: w_p ∝ exp(k s_p) if V_p = 1 else exp(NV_c)."""
-    cfg = SIRConfig(n_particles=64, visibility=VisibilityMarkovChain(p_nv=0.5, p_v=0.5))
+    """One step from equal weights, no motion: w_p ∝ exp(k s_p) if V_p = 1 else exp(NV_c) (as printed)."""
+    cfg = SIRConfig(n_particles=64, visibility=VisibilityMarkovChain(p_nv=0.5, p_v=0.5),
+                    likelihood=ExponentialScoreLikelihood(nv_c_on_score_scale=False))
     f = SIR(cfg, InitialState(x=100.0, y=100.0, pos_std=6.0, p_visible=0.5, time=0.0), seed=2)
     obs = GaussianBumpObservation(time=0.0, target_xy=(100.0, 100.0))
     s = f.step(0.0, obs)  # zero elapsed time: no prediction

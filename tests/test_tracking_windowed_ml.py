@@ -42,7 +42,10 @@ def test_follows_a_slow_bump_and_widens_the_window_when_lost():
     assert sizes[OCCLUDED.start - 1] == 25
     assert sizes[OCCLUDED.start : OCCLUDED.stop] == [50, 100, 200, 200, 200]
     assert [states[i].search_window[2] for i in OCCLUDED] == [25, 50, 100, 200, 200]
-    assert calls[OCCLUDED.start + 1][0][1] == (2500, 2)
+    # a doubled window keeps 25 x 25 points at twice the spacing
+    assert calls[OCCLUDED.start + 1][0][1] == (625, 2)
+    pts = calls[OCCLUDED.start + 1][0][2]
+    assert np.ptp(pts[:, 0]) >= 46 and np.all(np.diff(np.unique(pts[:, 0])) == 2)  # side 50: stride 2
     # while lost the position is extrapolated from the last two positions (about 1 px/frame here)
     for i in OCCLUDED:
         assert err[i] < 3.0

@@ -38,17 +38,20 @@ class Schedule:
 
 # Default manoeuvres: a gentle ~95 deg turn, a straight with the smoke, a straight with the decoy
 # pass, a sharp ~75 deg turn the other way, a straight along the wall, a medium ~45 deg turn.
-# The smoke and the decoy pass are ~2.3 s apart so that the smoke's rim is clear of the pass.
+# The gentle turn ends about 1 s before the smoke starts to thin the car and 2 s before it hides
+# it completely, so the car crosses the smoke on a straight (as in Pang et al. Fig. 6-7): what
+# happens inside the smoke is predictable from the motion before it. The smoke and the decoy
+# pass are ~2.5 s apart so that the smoke's rim is clear of the pass.
 # Each seed scales the angles by 0.85..1.15 and may mirror them all.
 SCHEDULE = Schedule(
     turns=(
-        Turn(0.03, 0.22, 95.0),  # gentle
-        Turn(0.625, 0.085, -75.0),  # sharp
-        Turn(0.895, 0.10, 45.0),  # medium
+        Turn(0.02, 0.15, 95.0),  # gentle
+        Turn(0.66, 0.08, -75.0),  # sharp
+        Turn(0.905, 0.09, 45.0),  # medium
     ),
-    smoke_centre=0.31,
-    decoy_closest=0.575,
-    wall=(0.73, 0.885),
+    smoke_centre=0.345,
+    decoy_closest=0.60,
+    wall=(0.755, 0.895),
     slow_turn=1,
     slow_fraction=0.35,
 )

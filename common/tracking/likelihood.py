@@ -84,11 +84,12 @@ class ExponentialScoreLikelihood(BaseModel):
     k: float = Field(5.0, description="Likelihood scale k (per unit score). Nelson 2008 Table I: 5.")
     nv_c: float = Field(0.2, description="Likelihood constant NV_c when occluded. Nelson 2008 Table I: 0.2.")
     nv_c_on_score_scale: bool = Field(
-        False,
-        description="False (default): occluded log-likelihood is NV_c, literally eq. 15, so V=1 is favoured "
-        "when score > NV_c / k. True: it is k * NV_c, so V=1 is favoured when score > NV_c; this matches the "
-        "paper's prose ('NV_c ... higher than the background correlation score ... but much less than the "
-        "self correlation score').",
+        True,
+        description="True (default): the occluded log-likelihood is k * NV_c, so V=1 is favoured when "
+        "score > NV_c, as the paper's prose requires ('NV_c ... higher than the background correlation "
+        "score ... but much less than the self correlation score'). False: literally eq. 15 as printed, "
+        "exp(NV_c), which favours V=1 whenever score > NV_c / k = 0.04, i.e. almost everywhere (measured: "
+        "p_visible stays near 0.8 through a full occlusion of the synthetic scene).",
     )
 
     def log_likelihood(self, scores: np.ndarray) -> np.ndarray:

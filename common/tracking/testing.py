@@ -127,7 +127,7 @@ class RecordingObservation:
         return self.inner.score_at(hyps)
 
     def score_grid(self, xy):
-        self.calls.append(("score_grid", np.shape(xy)))
+        self.calls.append(("score_grid", np.shape(xy), np.array(xy, dtype=float)))
         return self.inner.score_grid(xy)
 
 

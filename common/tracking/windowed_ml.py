@@ -45,6 +45,10 @@ class WindowedMLConfig(BaseModel):
         0.6, description="Minimum max-score to accept a detection. Pang 2010 §8: 0.6 (Nelson 2008 §IV: 0.7)."
     )
     growth: float = Field(2.0, gt=1.0, description="Window side multiplier per lost frame (both papers: doubled).")
+    window_points: int | None = Field(
+        25, ge=1, description="Grid points per window side: a doubled window keeps 25 x 25 points at twice the "
+        "spacing (Pang 2010 Fig. 10 counts the ML search's cost in points). None: every pixel of the window.",
+    )
     max_window_px: int = Field(
         200, ge=1, description="Cap on the window side, pixels (ours; the papers give none)."
     )
@@ -86,11 +90,15 @@ class WindowedMaximumLikelihood:
         return cls(config, initial)
 
     @staticmethod
-    def window_grid(centre: np.ndarray, side: int, image_size: tuple[int, int]) -> np.ndarray:
+    def window_grid(centre: np.ndarray, side: int, image_size: tuple[int, int], points: int | None = None) -> np.ndarray:
         """(M, 2) integer pixel positions of a ``side`` x ``side`` window about the rounded ``centre``,
-        restricted to the image [0, width-1] x [0, height-1]."""
+        restricted to the image [0, width-1] x [0, height-1]. With ``points``, a window wider than
+        ``points`` pixels is sampled on a ``points`` x ``points`` grid (stride ``side / points``),
+        so the search costs the same number of scores whatever its size."""
         c = np.rint(centre)
         off = np.arange(side) - side // 2
+        if points is not None and side > points:
+            off = np.unique(np.rint((np.arange(points) - (points - 1) / 2.0) * (side / points)))
         gx, gy = np.meshgrid(c[0] + off, c[1] + off, indexing="xy")
         pts = np.column_stack([gx.ravel(), gy.ravel()])
         w, h = image_size
@@ -114,7 +122,7 @@ class WindowedMaximumLikelihood:
         if observation is not None:
             side = self.window_size
             window = (float(np.rint(centre[0])), float(np.rint(centre[1])), int(side))
-            pts = self.window_grid(centre, side, observation.image_size)
+            pts = self.window_grid(centre, side, observation.image_size, cfg.window_points)
             best = -np.inf
             if len(pts):
                 scores, valid = observation.score_grid(pts)

@@ -1,0 +1,82 @@
+"""Arguments and helpers shared by the tracking commands (track, eval)."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+
+def box_arg(text: str) -> tuple[float, float, float, float]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,W,H (four numbers), got {text!r}") from None
+    if len(vals) != 4:
+        raise argparse.ArgumentTypeError(f"expected X,Y,W,H (four numbers), got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
+def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = False) -> None:
+    p.add_argument("source", metavar="SOURCE",
+                   help="video file, UAV123-format folder (img/ + groundtruth_rect.txt), camera:N, or synthetic[:SEED]")
+    p.add_argument("--init", type=box_arg, metavar="X,Y,W,H",
+                   help="target box in the first frame (default: the source's ground truth)")
+    if multi_filter:
+        p.add_argument("--filter", default="rbpf", metavar="F[,F...]",
+                       help="filters to run side by side: rbpf, sir, ml (comma separated)")
+    else:
+        p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="tracking filter")
+    p.add_argument("--particles", type=int, metavar="N", help="number of particles (rbpf, sir)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the filter's random generator")
+    p.add_argument("--frames", type=int, metavar="N", help="only the first N frames")
+    p.add_argument("--ml-threshold", type=float, metavar="T", help="windowed ML detection threshold (default 0.6)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def open_checked(args):
+    """Open the source and the initial box, turning bad input into UsageError."""
+    from common.cli import UsageError
+    from common.sources import SourceError, open_source
+
+    try:
+        source = open_source(args.source, n_frames=args.frames)
+    except (SourceError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+    init = args.init
+    if init is None:
+        first_truth = None
+        try:
+            first = next(iter(source))
+            first_truth = first.truth
+        except SourceError as exc:
+            raise UsageError(str(exc)) from None
+        if first_truth is None or first_truth.box is None:
+            raise UsageError(f"{args.source}: no ground truth for the first frame; give --init X,Y,W,H")
+        init = first_truth.box
+    return source, tuple(float(v) for v in init)
+
+
+def settings_for(args, source, filter_name: str):
+    from common.cli import UsageError
+    from common.settings import profile_for
+
+    if args.particles is not None and args.particles < 1:
+        raise UsageError("--particles must be at least 1")
+    st = profile_for(source, filter=filter_name, seed=args.seed, particles=args.particles)
+    if getattr(args, "ml_threshold", None) is not None:
+        st = st.model_copy(update={"ml": st.ml.model_copy(update={"threshold": args.ml_threshold})})
+    return st
+
+
+def point_estimate(state) -> tuple[float, float]:
+    e = state.map_estimate
+    return float(e.image_x), float(e.image_y)
+
+
+def truth_centre(source, frame) -> tuple[float, float]:
+    """Ground-truth centre: the synthetic scene knows it even while the target is hidden."""
+    if hasattr(source, "true_centre"):
+        return source.true_centre(frame.index)
+    c = frame.truth.centre if frame.truth is not None else None
+    return (np.nan, np.nan) if c is None else c

@@ -1,0 +1,66 @@
+"""Scoring a run against ground truth: centre errors, precision, AUC, occlusion recovery."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+THRESHOLDS = np.arange(0, 51)
+"""Centre-error thresholds (px) of the precision curve whose mean is ``auc50``."""
+
+
+@dataclass
+class RunScore:
+    precision20: float
+    """Fraction of frames with the target visible where the centre error is at most 20 px."""
+    auc50: float
+    """Mean of that precision over thresholds 0, 1, ..., 50 px."""
+    mean_err: float
+    """Mean centre error (px) over frames with the target visible."""
+    frames: int
+    visible_frames: int
+
+    def as_dict(self) -> dict:
+        return {"precision20": round(self.precision20, 4), "auc50": round(self.auc50, 4),
+                "mean_err": round(self.mean_err, 3), "frames": self.frames, "visible_frames": self.visible_frames}
+
+
+def centre_errors(estimates: np.ndarray, truths: np.ndarray) -> np.ndarray:
+    """Euclidean distance per frame between (N, 2) estimates and truths; NaN where no truth."""
+    return np.hypot(estimates[:, 0] - truths[:, 0], estimates[:, 1] - truths[:, 1])
+
+
+def score_run(errors: np.ndarray, visible: np.ndarray) -> RunScore:
+    """Precision and AUC over the frames where the target is ``visible`` (bool per frame)."""
+    e = np.asarray(errors, float)[np.asarray(visible, bool)]
+    if e.size == 0:
+        return RunScore(float("nan"), float("nan"), float("nan"), len(errors), 0)
+    e = np.where(np.isfinite(e), e, np.inf)
+    prec = np.array([(e <= t).mean() for t in THRESHOLDS])
+    return RunScore(float((e <= 20).mean()), float(prec.mean()), float(np.mean(e[np.isfinite(e)])) if np.isfinite(e).any()
+                    else float("inf"), len(errors), int(e.size))
+
+
+def reemergence_frame(visible_fraction: np.ndarray, occlusion: tuple[int, int], min_visible: float = 0.5) -> int | None:
+    """First frame at or after the end of a full occlusion ``(start, end)`` (end exclusive) where
+    at least ``min_visible`` of the target shows again."""
+    vf = np.asarray(visible_fraction, float)
+    for i in range(occlusion[1], len(vf)):
+        if vf[i] >= min_visible:
+            return i
+    return None
+
+
+def recovered(errors: np.ndarray, start: int | None, within: int = 10, below: float = 10.0, hold: int = 10) -> bool:
+    """True if the error is back under ``below`` px within ``within`` frames of ``start`` and then
+    stays under it for ``hold`` frames (so a track that merely sweeps past the target does not
+    count)."""
+    if start is None:
+        return False
+    e = np.asarray(errors, float)
+    for f in range(start, min(start + within + 1, len(e))):
+        if e[f] < below:
+            seg = e[f:f + hold]
+            return bool(len(seg) == min(hold, len(e) - f) and np.all(seg < below))
+    return False

@@ -1,0 +1,274 @@
+"""Frame sources: a video file, a UAV123-format folder, an image-sequence folder, a camera, or
+the built-in synthetic scene, all yielding :class:`Frame` in source order.
+
+Source strings (the ``SOURCE`` argument of the commands):
+
+- ``synthetic`` or ``synthetic:SEED``: the built-in scene (:mod:`common.scene`);
+- a folder with ``img/*.jpg`` and ``groundtruth_rect.txt`` (UAV123/OTB format, ``x,y,w,h`` per
+  line, ``NaN`` where the target is not visible); a folder of images without ground truth;
+- a video file readable by OpenCV;
+- ``camera:N``: live camera device N (real-time: frames are timestamped on capture).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+
+
+class SourceError(ValueError):
+    """The source cannot be opened or is inconsistent; the message says how to fix it."""
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    box: tuple[float, float, float, float] | None
+    """(x, y, w, h), top-left corner and size in pixels (0-based); None when not visible."""
+    angle_deg: float | None = None
+    """Image orientation of the target (anticlockwise as displayed), when the source knows it."""
+    visible_fraction: float | None = None
+
+    @property
+    def centre(self) -> tuple[float, float] | None:
+        if self.box is None:
+            return None
+        x, y, w, h = self.box
+        return (x + w / 2.0, y + h / 2.0)
+
+
+@dataclass(frozen=True)
+class Frame:
+    index: int
+    """Position in source order, from 0."""
+    time: float
+    """Capture time in seconds (source clock)."""
+    image: np.ndarray = field(repr=False)
+    """uint8 (H, W, 3) RGB."""
+    homography: np.ndarray | None = None
+    """3x3 ground plane (metres) -> image pixels, when the source knows the camera pose."""
+    truth: GroundTruth | None = None
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (self.image.shape[1], self.image.shape[0])
+
+
+class Source:
+    """Base class: a name, a frame rate, an optional length, iteration over frames."""
+
+    name: str = "source"
+    fps: float = 30.0
+    live: bool = False
+    """True for real-time sources (a camera): consumers may skip stale frames."""
+
+    def __len__(self) -> int:  # pragma: no cover - overridden
+        raise TypeError(f"{self.name} has no known length")
+
+    def __iter__(self) -> Iterator[Frame]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    @property
+    def has_truth(self) -> bool:
+        return False
+
+
+class SyntheticSource(Source):
+    def __init__(self, seed: int = 0, n_frames: int | None = None, config=None):
+        from common.scene import SceneConfig, SyntheticScene
+
+        cfg = config if config is not None else SceneConfig()
+        if n_frames is not None:
+            cfg = cfg.model_copy(update={"n_frames": n_frames}) if hasattr(cfg, "model_copy") else \
+                type(cfg)(**{**cfg.__dict__, "n_frames": n_frames})
+        self.scene = SyntheticScene(cfg, seed=seed)
+        self.seed = seed
+        self.name = f"synthetic-{seed}"
+        self.fps = float(self.scene.fps)
+
+    def __len__(self) -> int:
+        return len(self.scene)
+
+    @property
+    def has_truth(self) -> bool:
+        return True
+
+    def frame(self, i: int) -> Frame:
+        f = self.scene.frame(i)
+        t = f.truth
+        truth = GroundTruth(box=tuple(float(v) for v in t.box) if t.visible_fraction > 0 else None,
+                            angle_deg=float(t.angle_image_deg), visible_fraction=float(t.visible_fraction))
+        return Frame(index=i, time=float(f.time), image=f.image, homography=np.asarray(f.homography, float),
+                     truth=truth)
+
+    def true_centre(self, i: int) -> tuple[float, float]:
+        """Target centre even while hidden (the scene knows it)."""
+        x, y = self.scene.frame(i).truth.image_xy
+        return (float(x), float(y))
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self.frame(i)
+
+
+def read_groundtruth(path: Path) -> list[tuple[float, float, float, float] | None]:
+    """Parse ``groundtruth_rect.txt``: ``x,y,w,h`` per line (commas, tabs or spaces)."""
+    boxes: list[tuple[float, float, float, float] | None] = []
+    for n, line in enumerate(path.read_text().splitlines(), start=1):
+        line = line.strip()
+        if not line:
+            continue
+        parts = line.replace("\t", ",").replace(" ", ",").split(",")
+        parts = [p for p in parts if p]
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            raise SourceError(f"{path}:{n}: expected x,y,w,h numbers, got {line!r}") from None
+        if len(vals) != 4:
+            raise SourceError(f"{path}:{n}: expected 4 values x,y,w,h, got {len(vals)}")
+        if any(math.isnan(v) for v in vals):
+            boxes.append(None)
+        else:
+            boxes.append((vals[0], vals[1], vals[2], vals[3]))
+    return boxes
+
+
+class FolderSource(Source):
+    """A folder of frames (``img/`` sub-folder or the folder itself), optional ground truth."""
+
+    def __init__(self, folder: Path, fps: float = 30.0, one_based_truth: bool | None = None):
+        folder = Path(folder)
+        img_dir = folder / "img" if (folder / "img").is_dir() else folder
+        self.files = sorted(p for p in img_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not self.files:
+            raise SourceError(f"{folder}: no images found (expected img/*.jpg or image files in the folder)")
+        self.name = folder.name
+        self.fps = fps
+        gt_path = folder / "groundtruth_rect.txt"
+        self.truth: list | None = None
+        if gt_path.exists():
+            boxes = read_groundtruth(gt_path)
+            if len(boxes) != len(self.files):
+                raise SourceError(
+                    f"{folder}: groundtruth_rect.txt has {len(boxes)} boxes but img/ has {len(self.files)} "
+                    f"frames; they must match one to one (remove extra lines or frames)"
+                )
+            # UAV123 comes from MATLAB and counts from 1 (see shared/data/README.md).
+            shift = 1.0 if (one_based_truth if one_based_truth is not None else folder.name.startswith("uav123")) else 0.0
+            self.truth = [None if b is None else (b[0] - shift, b[1] - shift, b[2], b[3]) for b in boxes]
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    @property
+    def has_truth(self) -> bool:
+        return self.truth is not None
+
+    def frame(self, i: int) -> Frame:
+        from common.imageio import ImageReadError, read_rgb
+
+        try:
+            img = read_rgb(self.files[i])
+        except ImageReadError as exc:
+            raise SourceError(str(exc)) from None
+        truth = None
+        if self.truth is not None:
+            truth = GroundTruth(box=self.truth[i])
+        return Frame(index=i, time=i / self.fps, image=img, truth=truth)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self.frame(i)
+
+
+class VideoSource(Source):
+    def __init__(self, path: Path):
+        path = Path(path)
+        if not path.exists():
+            raise SourceError(f"{path}: no such file")
+        cap = cv2.VideoCapture(str(path))
+        ok, first = cap.read() if cap.isOpened() else (False, None)
+        cap.release()
+        if not ok or first is None:
+            raise SourceError(f"{path}: not a readable video (OpenCV could not decode a frame)")
+        self.path = path
+        self.name = path.stem
+        fps = cv2.VideoCapture(str(path)).get(cv2.CAP_PROP_FPS)
+        self.fps = float(fps) if fps and fps > 0 else 30.0
+
+    def __iter__(self) -> Iterator[Frame]:
+        cap = cv2.VideoCapture(str(self.path))
+        i = 0
+        try:
+            while True:
+                ok, bgr = cap.read()
+                if not ok:
+                    break
+                yield Frame(index=i, time=i / self.fps, image=np.ascontiguousarray(bgr[:, :, ::-1]))
+                i += 1
+        finally:
+            cap.release()
+
+    def __len__(self) -> int:
+        cap = cv2.VideoCapture(str(self.path))
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        cap.release()
+        return n
+
+
+class CameraSource(Source):
+    live = True
+
+    def __init__(self, device: int, max_frames: int | None = None):
+        self.device = device
+        self.name = f"camera{device}"
+        self.max_frames = max_frames
+
+    def __iter__(self) -> Iterator[Frame]:
+        cap = cv2.VideoCapture(self.device)
+        if not cap.isOpened():
+            raise SourceError(f"camera {self.device}: cannot be opened (is a camera attached?)")
+        t0 = time.monotonic()
+        i = 0
+        try:
+            while self.max_frames is None or i < self.max_frames:
+                ok, bgr = cap.read()
+                if not ok:
+                    break
+                yield Frame(index=i, time=time.monotonic() - t0, image=np.ascontiguousarray(bgr[:, :, ::-1]))
+                i += 1
+        finally:
+            cap.release()
+
+
+def open_source(spec: str, n_frames: int | None = None) -> Source:
+    """Open a source from its string (see the module docstring)."""
+    spec = str(spec)
+    if spec == "synthetic" or spec.startswith("synthetic:"):
+        seed_text = spec.partition(":")[2] or "0"
+        try:
+            seed = int(seed_text)
+        except ValueError:
+            raise SourceError(f"bad synthetic seed {seed_text!r}: use synthetic or synthetic:SEED (an integer)") from None
+        return SyntheticSource(seed=seed, n_frames=n_frames)
+    if spec.startswith("camera:"):
+        try:
+            return CameraSource(int(spec.partition(":")[2]), max_frames=n_frames)
+        except ValueError:
+            raise SourceError(f"bad camera {spec!r}: use camera:N with N the device number") from None
+    path = Path(spec)
+    if path.is_dir():
+        return FolderSource(path)
+    if path.exists():
+        return VideoSource(path)
+    raise SourceError(
+        f"{spec}: no such file or folder (SOURCE is a video file, a UAV123-format folder, "
+        f"camera:N, or synthetic[:SEED])"
+    )
