@@ -82,19 +82,17 @@ class Source:
 
 class SyntheticSource(Source):
     def __init__(self, seed: int = 0, n_frames: int | None = None, config=None):
+        """``n_frames`` keeps only the first frames of the scene (whose timeline is unchanged)."""
         from common.scene import SceneConfig, SyntheticScene
 
-        cfg = config if config is not None else SceneConfig()
-        if n_frames is not None:
-            cfg = cfg.model_copy(update={"n_frames": n_frames}) if hasattr(cfg, "model_copy") else \
-                type(cfg)(**{**cfg.__dict__, "n_frames": n_frames})
-        self.scene = SyntheticScene(cfg, seed=seed)
+        self.scene = SyntheticScene(config if config is not None else SceneConfig(), seed=seed)
+        self.limit = len(self.scene) if n_frames is None else max(0, min(int(n_frames), len(self.scene)))
         self.seed = seed
         self.name = f"synthetic-{seed}"
         self.fps = float(self.scene.fps)
 
     def __len__(self) -> int:
-        return len(self.scene)
+        return self.limit
 
     @property
     def has_truth(self) -> bool:

@@ -1,0 +1,79 @@
+"""polartrack track / eval end to end on a short synthetic scene, and bad input."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from common.cli import main
+from common.sources import open_source
+
+
+@pytest.fixture(scope="module")
+def short_track(tmp_path_factory):
+    out = tmp_path_factory.mktemp("track") / "run.csv"
+    assert main(["track", "synthetic:2", "--frames", "40", "--out", str(out), "--no-progress"]) == 0
+    with open(out) as fh:
+        rows = list(csv.DictReader(fh))
+    return rows
+
+
+def test_track_csv_and_accuracy(short_track):
+    rows = short_track
+    assert list(rows[0].keys()) == ["frame", "x", "y", "theta_deg", "p_visible"]
+    assert [int(r["frame"]) for r in rows] == list(range(40))
+    src = open_source("synthetic:2", n_frames=40)
+    errs = [np.hypot(float(r["x"]) - src.true_centre(i)[0], float(r["y"]) - src.true_centre(i)[1])
+            for i, r in enumerate(rows)]
+    assert max(errs) < 5.0
+    assert all(float(r["p_visible"]) > 0.9 for r in rows)
+    # theta follows the car's rotation relative to the first frame
+    t0 = src.frame(0).truth.angle_deg
+    true_rel = (src.frame(39).truth.angle_deg - t0 + 180) % 360 - 180
+    assert abs((float(rows[39]["theta_deg"]) - true_rel + 180) % 360 - 180) < 6.0
+
+
+def test_track_is_deterministic(short_track, tmp_path):
+    out = tmp_path / "again.csv"
+    assert main(["track", "synthetic:2", "--frames", "40", "--out", str(out), "--no-progress"]) == 0
+    with open(out) as fh:
+        assert list(csv.DictReader(fh)) == short_track
+
+
+def test_eval_json(tmp_path, capsys):
+    assert main(["eval", "synthetic:2", "--frames", "30", "--filter", "rbpf,ml", "--json", "--no-progress",
+                 "--out-dir", str(tmp_path)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["filters"]) == {"rbpf", "ml"}
+    assert out["precision20"] == out["filters"]["rbpf"]["precision20"] == 1.0
+    assert 0.8 < out["auc50"] <= 1.0 and out["mean_err"] < 3.0 and out["fps"] > 0
+    assert (tmp_path / "errors.png").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["track", "synthetic:1", "--frames", "3", "--init", "5000,10,40,20"], "outside the 1280x720 frame"),
+    (["track", "synthetic:1", "--frames", "3", "--init", "10,10,40,20"], "at least 64 px inside"),
+    (["track", "synthetic:1", "--frames", "3", "--init", "600,300,-4,20"], "must be positive"),
+    (["track", "nowhere/at/all.mp4"], "no such file or folder"),
+    (["eval", "synthetic:1", "--filter", "rbpf,kalman"], "unknown filter"),
+])
+def test_bad_input_is_a_clear_error(capsys, argv, message):
+    assert main(argv + ["--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+def test_unreadable_video_and_mismatched_folder(tmp_path, capsys):
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(b"garbage" * 50)
+    assert main(["track", str(bad), "--init", "1,1,5,5", "--no-progress"]) == 2
+    assert "not a readable video" in capsys.readouterr().err
+    d = tmp_path / "seq"
+    (d / "img").mkdir(parents=True)
+    import cv2
+
+    cv2.imwrite(str(d / "img" / "000001.jpg"), np.zeros((200, 200, 3), np.uint8))
+    (d / "groundtruth_rect.txt").write_text("1,1,5,5\n2,2,5,5\n")
+    assert main(["eval", str(d), "--no-progress"]) == 2
+    assert "2 boxes but img/ has 1 frames" in capsys.readouterr().err

@@ -1,0 +1,93 @@
+"""Frame sources: formats, ground truth conventions, and clear errors for bad input."""
+
+import cv2
+import numpy as np
+import pytest
+
+from common.sources import FolderSource, SourceError, VideoSource, open_source, read_groundtruth
+
+
+def _make_folder(tmp_path, n_frames=3, n_boxes=3, name="seq", lines=None):
+    d = tmp_path / name
+    (d / "img").mkdir(parents=True)
+    for i in range(n_frames):
+        img = np.full((40, 60, 3), i * 20, np.uint8)
+        img[10, 20] = (255, 0, 0)  # a red pixel (RGB) to check channel order
+        cv2.imwrite(str(d / "img" / f"{i + 1:06d}.png"), img[:, :, ::-1])  # lossless: exact colours
+    if lines is None:
+        lines = [f"{5 + i},{6 + i},10,8" for i in range(n_boxes)]
+    (d / "groundtruth_rect.txt").write_text("\n".join(lines) + "\n")
+    return d
+
+
+def test_folder_source_reads_frames_and_truth(tmp_path):
+    d = _make_folder(tmp_path, lines=["5,6,10,8", "NaN,NaN,NaN,NaN", "7\t8\t10\t8"])
+    src = open_source(str(d))
+    assert isinstance(src, FolderSource) and len(src) == 3 and src.has_truth
+    frames = list(src)
+    assert [f.index for f in frames] == [0, 1, 2]
+    assert frames[1].time == pytest.approx(1 / 30)
+    assert frames[0].truth.box == (5.0, 6.0, 10.0, 8.0) and frames[0].truth.centre == (10.0, 10.0)
+    assert frames[1].truth.box is None  # NaN line: not visible
+    assert frames[2].truth.box == (7.0, 8.0, 10.0, 8.0)
+    r, g, b = frames[0].image[10, 20]
+    assert r > 200 and g < 60 and b < 60  # RGB order
+
+
+def test_uav123_boxes_count_from_one(tmp_path):
+    d = _make_folder(tmp_path, name="uav123-test", lines=["5,6,10,8"] * 3)
+    assert open_source(str(d)).frame(0).truth.box == (4.0, 5.0, 10.0, 8.0)
+
+
+def test_folder_with_mismatched_truth_count(tmp_path):
+    d = _make_folder(tmp_path, n_frames=3, n_boxes=5)
+    with pytest.raises(SourceError, match="5 boxes but img/ has 3 frames"):
+        open_source(str(d))
+
+
+def test_bad_groundtruth_line(tmp_path):
+    p = tmp_path / "gt.txt"
+    p.write_text("1,2,3,4\n1,2,x,4\n")
+    with pytest.raises(SourceError, match=r"gt.txt:2: expected x,y,w,h"):
+        read_groundtruth(p)
+    p.write_text("1,2,3\n")
+    with pytest.raises(SourceError, match="expected 4 values"):
+        read_groundtruth(p)
+
+
+def test_empty_folder_and_missing_path(tmp_path):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SourceError, match="no images found"):
+        open_source(str(tmp_path / "empty"))
+    with pytest.raises(SourceError, match="no such file or folder"):
+        open_source(str(tmp_path / "nothing.mp4"))
+
+
+def test_unreadable_video(tmp_path):
+    p = tmp_path / "broken.mp4"
+    p.write_bytes(b"\x00\x01 definitely not a video" * 100)
+    with pytest.raises(SourceError, match="not a readable video"):
+        open_source(str(p))
+
+
+def test_video_source_round_trip(tmp_path):
+    p = tmp_path / "clip.avi"
+    w = cv2.VideoWriter(str(p), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (64, 48))
+    assert w.isOpened()
+    for i in range(5):
+        w.write(np.full((48, 64, 3), 40 * i, np.uint8))
+    w.release()
+    src = open_source(str(p))
+    assert isinstance(src, VideoSource) and src.fps == pytest.approx(25.0)
+    frames = list(src)
+    assert len(frames) == 5 and frames[3].time == pytest.approx(3 / 25)
+    assert abs(int(frames[3].image.mean()) - 120) <= 3
+
+
+def test_synthetic_specs():
+    src = open_source("synthetic:3", n_frames=5)
+    assert len(src) == 5 and src.name == "synthetic-3" and src.has_truth
+    f = src.frame(2)
+    assert f.homography.shape == (3, 3) and f.truth.angle_deg is not None
+    with pytest.raises(SourceError, match="synthetic:SEED"):
+        open_source("synthetic:abc")
