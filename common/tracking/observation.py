@@ -43,6 +43,12 @@ class FrameObservation(Protocol):
         ...
 
 
+class ObservationUnavailable(Exception):
+    """Raised by ``score_at`` / ``score_grid`` when the detector cannot answer (no reply before the
+    timeout, the frame unknown to it, ...). A filter then treats the frame as unobserved,
+    exactly like ``step(t, None)``: a missing reply is no observation, not a crash."""
+
+
 def sanitise_scores(scores: np.ndarray, valid: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Check shapes and enforce the protocol: score 0 where invalid or non-finite, clipped to [-1, 1]."""
     scores = np.asarray(scores, dtype=float).reshape(-1)

@@ -32,7 +32,7 @@ from ._frames import FrameClock, make_rng
 from .camera import world_to_image
 from .likelihood import BetaRatioLikelihood, LikelihoodModel
 from .motion import NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain
-from .observation import FrameObservation, inside_image_log_prior, sanitise_scores
+from .observation import FrameObservation, ObservationUnavailable, inside_image_log_prior, sanitise_scores
 from .state import InitialState, TrackState, summarise_particles
 
 
@@ -173,9 +173,15 @@ class RaoBlackwellisedParticleFilter:
         image_xy = world_to_image(h, self.particles[:, [0, 2]])
 
         log_lik = 0.0
+        scored = None
         if observation is not None:
             hyps = np.column_stack([image_xy, self.particles[:, 4]])
-            scores, _valid = sanitise_scores(*observation.score_at(hyps), self.n_particles)
+            try:
+                scored = sanitise_scores(*observation.score_at(hyps), self.n_particles)
+            except ObservationUnavailable:
+                observation = None  # the detector did not answer: predict only
+        if scored is not None:
+            scores, _valid = scored
             joint = self.log_pv + cfg.likelihood.log_likelihood(scores)  # log l_p(v) + log pi^-_p(v)
             log_m = np.logaddexp(joint[:, 0], joint[:, 1])  # log m_p
             self.log_pv = joint - log_m[:, None]  # log pi_p(v)

@@ -22,7 +22,7 @@ from ._frames import FrameClock, make_rng
 from .camera import world_to_image
 from .likelihood import ExponentialScoreLikelihood, LikelihoodModel
 from .motion import NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain
-from .observation import FrameObservation, inside_image_log_prior, sanitise_scores
+from .observation import FrameObservation, ObservationUnavailable, inside_image_log_prior, sanitise_scores
 from .state import InitialState, TrackState, summarise_particles
 
 
@@ -126,9 +126,15 @@ class SIRParticleFilter:
         image_xy = world_to_image(h, self.particles[:, [0, 2]])
 
         log_lik = 0.0
+        scored = None
         if observation is not None:
             hyps = np.column_stack([image_xy, self.particles[:, 4]])
-            scores, _valid = sanitise_scores(*observation.score_at(hyps), self.n_particles)
+            try:
+                scored = sanitise_scores(*observation.score_at(hyps), self.n_particles)
+            except ObservationUnavailable:
+                observation = None  # the detector did not answer: predict only
+        if scored is not None:
+            scores, _valid = scored
             ll = cfg.likelihood.log_likelihood(scores)  # (N, 2), columns V = 0, 1
             log_w = self.log_w + ll[np.arange(self.n_particles), self.visible]
             if cfg.confine_to_image:

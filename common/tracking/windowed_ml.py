@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from ._frames import FrameClock
 from .camera import image_to_world, world_to_image
 from .motion import wrap_degrees
-from .observation import FrameObservation
+from .observation import FrameObservation, ObservationUnavailable
 from .state import Estimate, InitialState, TrackState
 
 
@@ -119,13 +119,19 @@ class WindowedMaximumLikelihood:
         window = None
         detected = False
         new_position, new_theta = extrapolated, self.theta
+        grid = None
         if observation is not None:
             side = self.window_size
-            window = (float(np.rint(centre[0])), float(np.rint(centre[1])), int(side))
             pts = self.window_grid(centre, side, observation.image_size, cfg.window_points)
+            try:
+                grid = observation.score_grid(pts) if len(pts) else None
+            except ObservationUnavailable:
+                observation = None  # the detector did not answer: as step(t, None)
+        if observation is not None:
+            window = (float(np.rint(centre[0])), float(np.rint(centre[1])), int(side))
             best = -np.inf
-            if len(pts):
-                scores, valid = observation.score_grid(pts)
+            if grid is not None:
+                scores, valid = grid
                 scores = np.asarray(scores, dtype=float)
                 n_ang = scores.shape[1]
                 angles = wrap_degrees(np.arange(n_ang) * (360.0 / n_ang))

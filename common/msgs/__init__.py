@@ -1,0 +1,82 @@
+"""Message schemas of the bus: the project's own protobuf messages and Foxglove's RawImage,
+the topic of each, and packing of NumPy arrays into ``bytes`` fields.
+
+The generated code (``polartrack/messages_pb2.py``) comes from ``proto/`` via
+``tools/gen_proto.sh``; do not edit it by hand.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+from common.msgs.polartrack.messages_pb2 import (
+    Estimate,
+    FrameInfo,
+    ParticleCloud,
+    RunConfig,
+    ScoreQuery,
+    ScoreReply,
+    ServiceStatus,
+    Template,
+    Truth,
+)
+
+TOPICS: dict[str, type] = {
+    "frame/image": RawImage,
+    "frame/info": FrameInfo,
+    "detector/query": ScoreQuery,
+    "detector/reply": ScoreReply,
+    "template": Template,
+    "track/estimate": Estimate,
+    "track/particles": ParticleCloud,
+    "run/config": RunConfig,
+}
+"""Topic suffix (after ``polartrack/<stream>/``) -> message class. Status topics are
+``status/<service>`` (ServiceStatus)."""
+
+
+def message_class(suffix: str) -> type | None:
+    if suffix in TOPICS:
+        return TOPICS[suffix]
+    if suffix.startswith("status/"):
+        return ServiceStatus
+    return None
+
+
+def pack(a: np.ndarray, dtype=np.float64) -> bytes:
+    return np.ascontiguousarray(a, dtype=np.dtype(dtype).newbyteorder("<")).tobytes()
+
+
+def unpack(b: bytes, dtype, shape: tuple[int, ...]) -> np.ndarray:
+    """Array of ``shape`` from little-endian bytes; ValueError if the size does not match."""
+    dt = np.dtype(dtype).newbyteorder("<")
+    n = int(np.prod(shape)) if shape else 1
+    if len(b) != n * dt.itemsize:
+        raise ValueError(f"expected {n} x {dt.itemsize} bytes for shape {shape}, got {len(b)}")
+    return np.frombuffer(b, dtype=dt).reshape(shape).astype(np.dtype(dtype).newbyteorder("="))
+
+
+def image_to_msg(image: np.ndarray, capture_ns: int, frame_id: str) -> RawImage:
+    """uint8 RGB (H, W, 3) -> foxglove.RawImage (rgb8)."""
+    h, w = image.shape[:2]
+    msg = RawImage(frame_id=frame_id, width=w, height=h, encoding="rgb8", step=3 * w,
+                   data=np.ascontiguousarray(image, np.uint8).tobytes())
+    msg.timestamp.FromNanoseconds(int(capture_ns))
+    return msg
+
+
+def msg_to_image(msg: RawImage) -> np.ndarray:
+    """foxglove.RawImage (rgb8) -> uint8 (H, W, 3); ValueError for anything malformed."""
+    if msg.encoding != "rgb8":
+        raise ValueError(f"unsupported image encoding {msg.encoding!r} (expected rgb8)")
+    h, w = int(msg.height), int(msg.width)
+    if h <= 0 or w <= 0 or msg.step != 3 * w:
+        raise ValueError(f"bad image geometry {w}x{h} step {msg.step}")
+    if len(msg.data) != h * msg.step:
+        raise ValueError(f"image data has {len(msg.data)} bytes, expected {h * msg.step} (truncated?)")
+    return np.frombuffer(msg.data, np.uint8).reshape(h, w, 3)
+
+
+__all__ = ["RawImage", "FrameInfo", "Truth", "ScoreQuery", "ScoreReply", "Template", "Estimate", "ParticleCloud",
+           "RunConfig", "ServiceStatus", "TOPICS", "message_class", "pack", "unpack", "image_to_msg", "msg_to_image"]

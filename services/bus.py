@@ -1,0 +1,184 @@
+"""Zenoh plumbing shared by the services: explicit session config, topic keys, the capture-time
+attachment, liveliness, service counters and clean shutdown.
+
+Every session is opened from an explicit :class:`BusConfig`: peer mode on loopback by default,
+multicast scouting off; endpoints and mode (peer, or client of a router) are configurable for
+multi-host use.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import threading
+import time
+from typing import Literal
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+log = logging.getLogger("polartrack.bus")
+
+
+class BusConfig(BaseModel):
+    """How a service joins the bus."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    stream: str = Field("default", pattern=r"^[A-Za-z0-9_\-]+$",
+                        description="Namespace of this pipeline: keys are polartrack/<stream>/...")
+    mode: Literal["peer", "client"] = Field("peer", description="peer, or client of a Zenoh router")
+    listen: list[str] = Field(default_factory=list, description="Zenoh endpoints to listen on, e.g. tcp/127.0.0.1:7447")
+    connect: list[str] = Field(default_factory=list, description="Zenoh endpoints to connect to")
+    multicast_scouting: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
+
+    def zenoh_config(self) -> zenoh.Config:
+        c = zenoh.Config()
+        c.insert_json5("mode", json.dumps(self.mode))
+        c.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        return c
+
+    def key(self, suffix: str) -> str:
+        return f"polartrack/{self.stream}/{suffix}"
+
+    def suffix(self, key: str) -> str:
+        prefix = f"polartrack/{self.stream}/"
+        return key[len(prefix):] if key.startswith(prefix) else key
+
+
+def open_session(bus: BusConfig) -> zenoh.Session:
+    return zenoh.open(bus.zenoh_config())
+
+
+def ns_attachment(capture_ns: int) -> bytes:
+    """The frame's capture time travels with every message about it (the MCAP log time)."""
+    return int(capture_ns).to_bytes(8, "little", signed=True)
+
+
+def attachment_ns(sample) -> int | None:
+    att = getattr(sample, "attachment", None)
+    if att is None:
+        return None
+    b = att.to_bytes()
+    return int.from_bytes(b, "little", signed=True) if len(b) == 8 else None
+
+
+def payload_bytes(obj) -> bytes:
+    p = getattr(obj, "payload", None)
+    return b"" if p is None else p.to_bytes()
+
+
+class Counters:
+    """A service's counters (thread-safe), published as ServiceStatus."""
+
+    def __init__(self, service: str):
+        self.service = service
+        self._lock = threading.Lock()
+        self.values = {"received": 0, "published": 0, "malformed": 0, "dropped": 0, "errors": 0}
+
+    def add(self, name: str, n: int = 1) -> None:
+        with self._lock:
+            self.values[name] += n
+
+    def __getitem__(self, name: str) -> int:
+        return self.values[name]
+
+    def status(self, final: bool = False):
+        import psutil
+
+        from common.msgs import ServiceStatus
+
+        cpu = psutil.Process().cpu_times()
+        with self._lock:
+            return ServiceStatus(service=self.service, cpu_s=cpu.user + cpu.system, final=final, **self.values)
+
+
+class Stopper:
+    """Set on SIGINT/SIGTERM; services poll it between messages."""
+
+    def __init__(self):
+        self.event = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                signal.signal(sig, self._handle)
+            except ValueError:  # not the main thread (tests)
+                pass
+
+    def _handle(self, signum, frame) -> None:
+        self.event.set()
+
+    @property
+    def stopped(self) -> bool:
+        return self.event.is_set()
+
+    def wait(self, seconds: float) -> bool:
+        return self.event.wait(seconds)
+
+
+def wait_for_alive(session: zenoh.Session, bus: BusConfig, services: list[str], timeout: float = 20.0,
+                   stopper: Stopper | None = None) -> bool:
+    """Block until every named service has its liveliness token on the bus."""
+    deadline = time.monotonic() + timeout
+    want = set(services)
+    while time.monotonic() < deadline and not (stopper and stopper.stopped):
+        alive = set()
+        for reply in session.liveliness().get(bus.key("alive/*"), timeout=1.0):
+            if reply.ok is not None:
+                alive.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+        if want <= alive:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def setup_logging(service: str, level: str = "INFO") -> logging.Logger:
+    logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO),
+                        format=f"%(asctime)s {service} %(levelname)s %(message)s")
+    return logging.getLogger(f"polartrack.{service}")
+
+
+class Inbox:
+    """Zenoh callbacks only append here (no work in the callback); the service's main thread
+    waits on it. Each named box is a deque; a box with ``maxlen`` drops its oldest entry when
+    full (counted in ``dropped``), so a slow consumer never grows a queue without bound."""
+
+    def __init__(self):
+        from collections import deque
+
+        self._deque = deque
+        self.cv = threading.Condition()
+        self.boxes: dict[str, object] = {}
+        self.dropped: dict[str, int] = {}
+
+    def callback(self, name: str, maxlen: int | None = None):
+        box = self._deque(maxlen=maxlen)
+        self.boxes[name] = box
+        self.dropped[name] = 0
+
+        def put(item) -> None:
+            with self.cv:
+                if box.maxlen is not None and len(box) == box.maxlen:
+                    self.dropped[name] += 1
+                box.append(item)
+                self.cv.notify_all()
+
+        return put
+
+    def pop(self, name: str):
+        with self.cv:
+            box = self.boxes[name]
+            return box.popleft() if box else None
+
+    def pending(self, name: str) -> int:
+        with self.cv:
+            return len(self.boxes[name])
+
+    def wait(self, timeout: float) -> bool:
+        """Wait until any box has an entry (True) or the timeout passes (False)."""
+        with self.cv:
+            if any(self.boxes.values()):
+                return True
+            return self.cv.wait_for(lambda: any(self.boxes.values()), timeout)

@@ -1,0 +1,153 @@
+"""Ingest service: publishes the frames of a source on the bus.
+
+Each frame goes out as a foxglove.RawImage (``frame/image``) and a FrameInfo (``frame/info``:
+index, capture time, homography when known, ground truth when known), both carrying the
+capture time as their attachment. Pacing: ``consumer`` (a file source paced by the tracker:
+at most ``window`` frames ahead of the last estimate, so nothing is dropped), ``realtime`` (the
+source rate; a slow tracker skips stale frames) or ``max`` (as fast as possible).
+Run: ``python -m services.ingest --help``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import time
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from common.msgs import Estimate, FrameInfo, Truth, image_to_msg
+from common.sources import Frame, SourceError, open_source
+from services import options
+from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive
+
+log = logging.getLogger("polartrack.ingest")
+
+
+class IngestSettings(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    source: str = Field(description="video file, UAV123 folder, camera:N or synthetic[:SEED]")
+    frames: int | None = Field(None, ge=1, description="only the first N frames")
+    pace: Literal["consumer", "realtime", "max"] = Field("consumer", description="how fast frames go out")
+    window: int = Field(2, ge=1, description="consumer pacing: frames in flight ahead of the last estimate")
+    consumer_timeout_s: float = Field(10.0, gt=0, description="consumer pacing: give up waiting after this")
+    wait_for: list[str] = Field(default_factory=list, description="services to wait for (liveliness) first")
+    wait_timeout_s: float = Field(60.0, gt=0)
+    start_ns: int | None = Field(None, description="time base: capture_ns of frame 0 (default: now)")
+    run_config: str | None = Field(None, description="RunConfig (JSON) to publish before the first frame")
+
+
+def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true_centre=None) -> FrameInfo:
+    h, w = frame.image.shape[:2]
+    info = FrameInfo(index=frame.index, time_s=frame.time, capture_ns=capture_ns, width=w, height=h,
+                     source=source_name, total_frames=total)
+    if frame.homography is not None:
+        info.homography.extend(float(v) for v in frame.homography.ravel())
+    t = frame.truth
+    if t is not None:
+        nan = math.nan
+        tr = Truth(visible=t.box is not None, angle_deg=nan if t.angle_deg is None else t.angle_deg,
+                   visible_fraction=nan if t.visible_fraction is None else t.visible_fraction)
+        if t.box is not None:
+            tr.box_x, tr.box_y, tr.box_w, tr.box_h = t.box
+        c = true_centre if true_centre is not None else t.centre
+        tr.centre_x, tr.centre_y = c if c is not None else (nan, nan)
+        info.truth.CopyFrom(tr)
+    return info
+
+
+def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
+    from google.protobuf.json_format import Parse
+
+    from common.msgs import RunConfig
+
+    c = Counters("ingest")
+    source = open_source(cfg.source, n_frames=cfg.frames)
+    total = 0 if source.live else len(source)
+    inbox = Inbox()
+    with open_session(bus) as session:
+        pub_image = session.declare_publisher(bus.key("frame/image"))
+        pub_info = session.declare_publisher(bus.key("frame/info"))
+        pub_status = session.declare_publisher(bus.key("status/ingest"))
+        sub = session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate"))
+        token = session.liveliness().declare_token(bus.key("alive/ingest"))
+        if cfg.wait_for and not wait_for_alive(session, bus, cfg.wait_for, cfg.wait_timeout_s, stopper):
+            log.error("services %s not up after %.0f s", cfg.wait_for, cfg.wait_timeout_s)
+            c.add("errors")
+        start_ns = cfg.start_ns if cfg.start_ns is not None else time.time_ns()
+        if cfg.run_config:
+            rc = Parse(cfg.run_config, RunConfig())
+            rc.start_ns = start_ns
+            session.put(bus.key("run/config"), rc.SerializeToString(), attachment=ns_attachment(start_ns))
+        done = -1  # highest frame index estimated
+        wall0 = time.monotonic()
+        last_ns = start_ns
+        index = -1
+        for frame in source:
+            if stopper.stopped:
+                break
+            index = frame.index
+            if cfg.pace == "consumer":
+                deadline = time.monotonic() + cfg.consumer_timeout_s
+                while frame.index - done > cfg.window and not stopper.stopped:
+                    inbox.wait(0.05)
+                    while (s := inbox.pop("estimate")) is not None:
+                        try:
+                            done = max(done, int(Estimate.FromString(payload_bytes(s)).frame_index))
+                        except Exception:  # noqa: BLE001
+                            c.add("malformed")
+                    if time.monotonic() > deadline:
+                        log.warning("no estimate for frame %d after %.0f s: going on", done + 1, cfg.consumer_timeout_s)
+                        done = frame.index - cfg.window
+                        c.add("errors")
+            elif cfg.pace == "realtime":
+                delay = wall0 + frame.time - time.monotonic()
+                if delay > 0:
+                    stopper.wait(delay)
+            if source.live:
+                capture_ns = time.time_ns()
+            else:
+                capture_ns = start_ns + int(round(frame.time * 1e9))
+            last_ns = capture_ns
+            att = ns_attachment(capture_ns)
+            true_centre = source.true_centre(frame.index) if hasattr(source, "true_centre") else None
+            pub_image.put(image_to_msg(frame.image, capture_ns, str(frame.index)).SerializeToString(), attachment=att)
+            pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
+                         attachment=att)
+            c.add("published")
+        eos = FrameInfo(index=index + 1, end_of_stream=True, source=source.name, total_frames=total,
+                        capture_ns=last_ns)
+        pub_info.put(eos.SerializeToString(), attachment=ns_attachment(last_ns))
+        pub_status.put(c.status(final=True).SerializeToString(), attachment=ns_attachment(last_ns))
+        log.info("published %d frames", c["published"])
+        time.sleep(0.1)
+        token.undeclare()
+        sub.undeclare()
+    return c
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m services.ingest", description=__doc__)
+    options.add_bus_arguments(p)
+    p.add_argument("--source", help="video file, UAV123 folder, camera:N or synthetic[:SEED]")
+    p.add_argument("--frames", type=int, help="only the first N frames")
+    p.add_argument("--pace", choices=["consumer", "realtime", "max"])
+    p.add_argument("--wait-for", dest="wait_for", type=lambda t: [s for s in t.split(",") if s],
+                   help="comma-separated services to wait for")
+    args = p.parse_args(argv)
+    bus, cfg = options.load("ingest", args, IngestSettings, ["source", "frames", "pace", "wait_for"])
+    from services.bus import setup_logging
+
+    setup_logging("ingest", args.log_level)
+    try:
+        serve(bus, cfg, Stopper())
+    except SourceError as exc:
+        options.fail("ingest", str(exc))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

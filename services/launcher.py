@@ -1,0 +1,241 @@
+"""Starts the services as separate processes on a private loopback Zenoh network.
+
+Each service listens on its own loopback port and connects to every other one (an explicit
+full mesh: no scouting, nothing leaves 127.0.0.1). The launcher watches the estimates for
+progress, shuts everything down when the source ends or on Ctrl-C, and leaves
+``recordings/<time>-<source>.mcap`` (and ``.rrd`` with the viewer).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from common.settings import TrackerSettings
+
+SERVICES = ("recorder", "detector", "tracker", "viewer", "ingest")
+
+
+def free_ports(n: int) -> list[int]:
+    socks, ports = [], []
+    for _ in range(n):
+        s = socket.socket()
+        s.bind(("127.0.0.1", 0))
+        socks.append(s)
+        ports.append(s.getsockname()[1])
+    for s in socks:
+        s.close()
+    return ports
+
+
+def mesh_args(ports: dict[str, int], name: str) -> list[str]:
+    args = ["--listen", f"tcp/127.0.0.1:{ports[name]}"]
+    for other, port in ports.items():
+        if other != name:
+            args += ["--connect", f"tcp/127.0.0.1:{port}"]
+    return args
+
+
+@dataclass
+class RunResult:
+    mcap: str
+    rrd: str | None
+    frames: int
+    estimates: int
+    mean_err: float | None
+    frames_lost: int | None
+    fps: float
+    wall_s: float
+    returncodes: dict[str, int | None] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"mcap": self.mcap, "rrd": self.rrd, "frames": self.frames, "estimates": self.estimates,
+                "mean_err": None if self.mean_err is None else round(self.mean_err, 3),
+                "frames_lost": self.frames_lost, "fps": round(self.fps, 2), "wall_s": round(self.wall_s, 2),
+                "returncodes": self.returncodes}
+
+
+class Pipeline:
+    """The processes of one run. Use as a context manager: everything is stopped on exit."""
+
+    def __init__(self, source: str, init_box, settings: TrackerSettings, out_dir: str | Path = "recordings",
+                 frames: int | None = None, pace: str = "consumer", viewer: bool = True, stream: str | None = None,
+                 name: str | None = None, log_dir: str | Path | None = None):
+        self.source, self.init_box, self.settings = source, tuple(float(v) for v in init_box), settings
+        self.frames, self.pace, self.viewer = frames, pace, viewer
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        safe = "".join(ch if ch.isalnum() or ch in "-_" else "-" for ch in source.strip("/").split("/")[-1])
+        self.name = name or f"{stamp}-{safe}"
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.mcap = str(self.out_dir / f"{self.name}.mcap")
+        self.rrd = str(self.out_dir / f"{self.name}.rrd") if viewer else None
+        self.stream = stream or f"run{os.getpid()}x{int(time.time() * 1000) % 100000}"
+        names = [s for s in SERVICES if viewer or s != "viewer"]
+        self.ports = dict(zip(names + ["launcher"], free_ports(len(names) + 1)))
+        self.tmp = tempfile.TemporaryDirectory(prefix="polartrack-")
+        self.log_dir = Path(log_dir) if log_dir else Path(self.tmp.name)
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, object] = {}
+
+    # -- processes ------------------------------------------------------------------------
+    def command(self, service: str) -> list[str]:
+        base = [sys.executable, "-m", f"services.{service}", "--stream", self.stream] + mesh_args(self.ports, service)
+        if service == "recorder":
+            return base + ["--out", self.mcap]
+        if service == "viewer":
+            return base + ["--out", self.rrd]
+        if service == "tracker":
+            cfg = Path(self.tmp.name) / "tracker.json"
+            cfg.write_text(json.dumps({"init_box": list(self.init_box), "settings": self.settings.model_dump(mode="json"),
+                                       "skip_stale": self.pace != "consumer"}))
+            return base + ["--config", str(cfg)]
+        if service == "ingest":
+            cfg = Path(self.tmp.name) / "ingest.json"
+            run_config = {"run_id": self.name, "source": self.source, "init_box": list(self.init_box),
+                          "settings_json": self.settings.model_dump_json(), "seed": self.settings.seed,
+                          "versions_json": json.dumps(versions()), "pace": self.pace}
+            waits = [s for s in self.ports if s not in ("ingest", "launcher")]
+            cfg.write_text(json.dumps({"source": self.source, "frames": self.frames, "pace": self.pace,
+                                       "wait_for": waits, "run_config": json.dumps(run_config)}))
+            return base + ["--config", str(cfg)]
+        return base
+
+    def start(self, service: str) -> subprocess.Popen:
+        log = open(self.log_dir / f"{service}.log", "ab")
+        self.logs[service] = log
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        proc = subprocess.Popen(self.command(service), stdout=log, stderr=subprocess.STDOUT, env=env,
+                                start_new_session=True)
+        self.procs[service] = proc
+        return proc
+
+    def stop(self, service: str, timeout: float = 10.0) -> int | None:
+        proc = self.procs.get(service)
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        return proc.returncode
+
+    def kill(self, service: str) -> None:
+        proc = self.procs.get(service)
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+
+    def close(self) -> dict[str, int | None]:
+        codes = {}
+        for service in ("ingest", "tracker", "viewer", "detector", "recorder"):
+            codes[service] = self.stop(service)
+        for log in self.logs.values():
+            log.close()
+        return codes
+
+    def __enter__(self) -> "Pipeline":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+        self.tmp.cleanup()
+
+    def log_text(self, service: str) -> str:
+        p = self.log_dir / f"{service}.log"
+        return p.read_text(errors="replace") if p.exists() else ""
+
+    # -- a run ----------------------------------------------------------------------------
+    def run(self, progress: bool = True, timeout: float | None = None) -> RunResult:
+        """Start everything, wait for the end of the source, stop everything."""
+        from tqdm import tqdm
+
+        from common.msgs import Estimate, FrameInfo
+        from services.bus import BusConfig, Inbox, open_session, payload_bytes
+
+        bus = BusConfig(stream=self.stream, **_mesh_config(self.ports, "launcher"))
+        inbox = Inbox()
+        truths: dict[int, tuple[float, float, bool]] = {}
+        errors: dict[int, float] = {}
+        t0 = time.monotonic()
+        first_t = last_t = None
+        with open_session(bus) as session:
+            subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate")),
+                    session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))]
+            for s in [s for s in self.ports if s not in ("ingest", "launcher")]:
+                self.start(s)
+            self.start("ingest")
+            bar = tqdm(total=None, unit="frame", disable=not progress, file=sys.stderr, desc=self.name)
+            total = None
+            done = False
+            while not done:
+                inbox.wait(0.2)
+                while (s := inbox.pop("info")) is not None:
+                    info = FrameInfo.FromString(payload_bytes(s))
+                    if info.total_frames and total is None:
+                        total = info.total_frames
+                        bar.total = total
+                        bar.refresh()
+                    if info.HasField("truth") and not info.end_of_stream:
+                        t = info.truth
+                        truths[info.index] = (t.centre_x, t.centre_y, t.visible)
+                while (s := inbox.pop("estimate")) is not None:
+                    e = Estimate.FromString(payload_bytes(s))
+                    now = time.monotonic()
+                    first_t = first_t or now
+                    last_t = now
+                    if e.frame_index in truths:
+                        cx, cy, vis = truths[e.frame_index]
+                        if vis and np.isfinite(cx):
+                            errors[e.frame_index] = float(np.hypot(e.x - cx, e.y - cy))
+                    errors.setdefault(e.frame_index, float("nan"))
+                    bar.update(1)
+                tracker = self.procs["tracker"]
+                ingest = self.procs["ingest"]
+                if tracker.poll() is not None and ingest.poll() is not None:
+                    done = True
+                if ingest.poll() not in (None, 0) or tracker.poll() not in (None, 0):
+                    done = True
+                if timeout is not None and time.monotonic() - t0 > timeout:
+                    done = True
+            bar.close()
+            for s in subs:
+                s.undeclare()
+        codes = self.close()
+        n = len(errors)
+        errs = np.array([e for e in errors.values() if np.isfinite(e)])
+        fps = (n - 1) / (last_t - first_t) if n > 1 and last_t > first_t else 0.0
+        return RunResult(mcap=self.mcap, rrd=self.rrd, frames=total or n, estimates=n,
+                         mean_err=float(errs.mean()) if errs.size else None,
+                         frames_lost=int(np.sum(errs > 20.0)) if errs.size else None, fps=fps,
+                         wall_s=time.monotonic() - t0, returncodes=codes)
+
+
+def _mesh_config(ports: dict[str, int], name: str) -> dict:
+    return {"listen": [f"tcp/127.0.0.1:{ports[name]}"],
+            "connect": [f"tcp/127.0.0.1:{p}" for s, p in ports.items() if s != name]}
+
+
+def versions() -> dict[str, str]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": sys.version.split()[0]}
+    for pkg in ("polartrack", "numpy", "dtcwt", "opencv-python-headless", "eclipse-zenoh", "mcap", "rerun-sdk", "numba"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            pass
+    return out

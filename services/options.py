@@ -1,0 +1,67 @@
+"""Flags and TOML config of a service, validated with clear one-line messages.
+
+Every service takes the bus flags (``--stream --mode --listen --connect``), its own flags, and an
+optional ``--config FILE.toml`` whose keys are the same names (flags given on the command line
+win). Errors exit with status 2 and say which key is wrong and why.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tomllib
+from typing import TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+from services.bus import BusConfig
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def add_bus_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE.toml", help="TOML (or .json) file with the same keys as the flags")
+    p.add_argument("--stream", help="pipeline namespace (keys polartrack/<stream>/...)")
+    p.add_argument("--mode", choices=["peer", "client"], help="Zenoh mode")
+    p.add_argument("--listen", action="append", metavar="ENDPOINT", help="Zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="Zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--log-level", default="INFO", help="logging level")
+
+
+def fail(service: str, message: str) -> None:
+    print(f"{service}: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]) -> tuple[BusConfig, M]:
+    """Merge the TOML file (if any) and the flags that were given, then validate both models."""
+    data: dict = {}
+    if args.config:
+        try:
+            with open(args.config, "rb") as fh:
+                data = json.load(fh) if args.config.endswith(".json") else tomllib.load(fh)
+        except FileNotFoundError:
+            fail(service, f"--config {args.config}: no such file")
+        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+            fail(service, f"--config {args.config}: not valid {'JSON' if args.config.endswith('.json') else 'TOML'} ({exc})")
+        if not isinstance(data, dict):
+            fail(service, f"--config {args.config}: expected a table of keys")
+    bus_data = dict(data.pop("bus", {}))
+    for k in ("stream", "mode", "listen", "connect"):
+        v = getattr(args, k, None)
+        if v is not None:
+            bus_data[k] = v
+    svc_data = dict(data)
+    for k in keys:
+        v = getattr(args, k, None)
+        if v is not None:
+            svc_data[k] = v
+    try:
+        bus = BusConfig(**bus_data)
+        cfg = model(**svc_data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "config"
+        fail(service, f"{where}: {first['msg']} (got {first.get('input')!r})")
+    return bus, cfg
