@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from common.commands import bench, calibrate, demo, eval as eval_cmd, match, run, study, track
+from common.commands import bench, calibrate, demo, eval as eval_cmd, match, replay, run, study, track, view
 
-COMMANDS = {"demo": demo, "run": run, "track": track, "eval": eval_cmd, "calibrate": calibrate, "match": match, "bench": bench, "study": study}
+COMMANDS = {"demo": demo, "run": run, "replay": replay, "view": view, "track": track, "eval": eval_cmd, "calibrate": calibrate, "match": match, "bench": bench, "study": study}
 
 
 class UsageError(Exception):

@@ -28,7 +28,8 @@ class BusConfig(BaseModel):
 
     stream: str = Field("default", pattern=r"^[A-Za-z0-9_\-]+$",
                         description="Namespace of this pipeline: keys are polartrack/<stream>/...")
-    mode: Literal["peer", "client"] = Field("peer", description="peer, or client of a Zenoh router")
+    mode: Literal["peer", "client", "router"] = Field(
+        "peer", description="peer, client of a Zenoh router, or router (the launcher hosts one on loopback)")
     listen: list[str] = Field(default_factory=list, description="Zenoh endpoints to listen on, e.g. tcp/127.0.0.1:7447")
     connect: list[str] = Field(default_factory=list, description="Zenoh endpoints to connect to")
     multicast_scouting: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
@@ -39,6 +40,9 @@ class BusConfig(BaseModel):
         c.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        # peers start in any order: retry connections quickly so the mesh forms in well under a second
+        c.insert_json5("connect/retry", json.dumps({"period_init_ms": 50, "period_max_ms": 500,
+                                                    "period_increase_factor": 1.5}))
         return c
 
     def key(self, suffix: str) -> str:
@@ -51,6 +55,14 @@ class BusConfig(BaseModel):
 
 def open_session(bus: BusConfig) -> zenoh.Session:
     return zenoh.open(bus.zenoh_config())
+
+
+def publisher(session: zenoh.Session, key: str):
+    """A reliable publisher that blocks rather than drops when the link is congested: every
+    message must reach the recorder (Zenoh's default for puts is to drop under congestion,
+    which lost whole 2.7 MB frames)."""
+    return session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                     reliability=zenoh.Reliability.RELIABLE)
 
 
 def ns_attachment(capture_ns: int) -> bytes:
@@ -132,6 +144,38 @@ def wait_for_alive(session: zenoh.Session, bus: BusConfig, services: list[str], 
             return True
         time.sleep(0.05)
     return False
+
+
+class Presence:
+    """Which services are alive, from their liveliness tokens (kept current by a subscriber)."""
+
+    def __init__(self, session, bus: BusConfig):
+        self._alive: set[str] = set()
+        self._lock = threading.Lock()
+        self._sub = session.liveliness().declare_subscriber(bus.key("alive/*"), self._on, history=True)
+
+    def _on(self, sample) -> None:
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(name)
+            else:
+                self._alive.discard(name)
+
+    def __contains__(self, name: str) -> bool:
+        with self._lock:
+            return name in self._alive
+
+    def wait(self, name: str, timeout: float, stopper: "Stopper | None" = None) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not (stopper and stopper.stopped):
+            if name in self:
+                return True
+            time.sleep(0.02)
+        return name in self
+
+    def close(self) -> None:
+        self._sub.undeclare()
 
 
 def setup_logging(service: str, level: str = "INFO") -> logging.Logger:

@@ -24,7 +24,7 @@ from common.msgs import RawImage, ScoreQuery, ScoreReply, pack, unpack
 from common.msgs import Template as TemplateMsg
 from common.msgs import msg_to_image
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, attachment_ns, ns_attachment, open_session, payload_bytes
+from services.bus import BusConfig, Counters, Inbox, Stopper, attachment_ns, ns_attachment, open_session, payload_bytes, publisher
 
 log = logging.getLogger("polartrack.detector")
 
@@ -140,10 +140,10 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
             session.declare_subscriber(bus.key("template"), inbox.callback("template")),
         ]
         queryable = session.declare_queryable(bus.key("detector/score"), inbox.callback("query"))
-        pub_query = session.declare_publisher(bus.key("detector/query"))
-        pub_reply = session.declare_publisher(bus.key("detector/reply"))
-        pub_template = session.declare_publisher(bus.key("template"))
-        pub_status = session.declare_publisher(bus.key("status/detector"))
+        pub_query = publisher(session, bus.key("detector/query"))
+        pub_reply = publisher(session, bus.key("detector/reply"))
+        pub_template = publisher(session, bus.key("template"))
+        pub_status = publisher(session, bus.key("status/detector"))
         token = session.liveliness().declare_token(bus.key("alive/detector"))
         log.info("detector up on %s", bus.key("detector/score"))
 

@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from common.msgs import Estimate, FrameInfo, Truth, image_to_msg
 from common.sources import Frame, SourceError, open_source
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive
+from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
 
 log = logging.getLogger("polartrack.ingest")
 
@@ -69,9 +69,9 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
     total = 0 if source.live else len(source)
     inbox = Inbox()
     with open_session(bus) as session:
-        pub_image = session.declare_publisher(bus.key("frame/image"))
-        pub_info = session.declare_publisher(bus.key("frame/info"))
-        pub_status = session.declare_publisher(bus.key("status/ingest"))
+        pub_image = publisher(session, bus.key("frame/image"))
+        pub_info = publisher(session, bus.key("frame/info"))
+        pub_status = publisher(session, bus.key("status/ingest"))
         sub = session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate"))
         token = session.liveliness().declare_token(bus.key("alive/ingest"))
         if cfg.wait_for and not wait_for_alive(session, bus, cfg.wait_for, cfg.wait_timeout_s, stopper):
@@ -81,7 +81,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         if cfg.run_config:
             rc = Parse(cfg.run_config, RunConfig())
             rc.start_ns = start_ns
-            session.put(bus.key("run/config"), rc.SerializeToString(), attachment=ns_attachment(start_ns))
+            publisher(session, bus.key("run/config")).put(rc.SerializeToString(), attachment=ns_attachment(start_ns))
         done = -1  # highest frame index estimated
         wall0 = time.monotonic()
         last_ns = start_ns

@@ -1,8 +1,9 @@
 """Starts the services as separate processes on a private loopback Zenoh network.
 
-Each service listens on its own loopback port and connects to every other one (an explicit
-full mesh: no scouting, nothing leaves 127.0.0.1). The launcher watches the estimates for
-progress, shuts everything down when the source ends or on Ctrl-C, and leaves
+The launcher hosts a Zenoh router on a free loopback port and every service joins it as a
+client (explicit endpoints, no scouting, nothing leaves 127.0.0.1): a star that forms as soon
+as each process starts, whatever the start order. It watches the estimates for progress,
+shuts everything down when the source ends or on Ctrl-C, and leaves
 ``recordings/<time>-<source>.mcap`` (and ``.rrd`` with the viewer).
 """
 
@@ -38,12 +39,15 @@ def free_ports(n: int) -> list[int]:
     return ports
 
 
-def mesh_args(ports: dict[str, int], name: str) -> list[str]:
-    args = ["--listen", f"tcp/127.0.0.1:{ports[name]}"]
-    for other, port in ports.items():
-        if other != name:
-            args += ["--connect", f"tcp/127.0.0.1:{port}"]
-    return args
+def client_args(hub_port: int) -> list[str]:
+    """Flags joining a service to the loopback router as a client."""
+    return ["--mode", "client", "--connect", f"tcp/127.0.0.1:{hub_port}"]
+
+
+def router_config(hub_port: int, stream: str):
+    from services.bus import BusConfig
+
+    return BusConfig(stream=stream, mode="router", listen=[f"tcp/127.0.0.1:{hub_port}"])
 
 
 @dataclass
@@ -81,8 +85,9 @@ class Pipeline:
         self.mcap = str(self.out_dir / f"{self.name}.mcap")
         self.rrd = str(self.out_dir / f"{self.name}.rrd") if viewer else None
         self.stream = stream or f"run{os.getpid()}x{int(time.time() * 1000) % 100000}"
-        names = [s for s in SERVICES if viewer or s != "viewer"]
-        self.ports = dict(zip(names + ["launcher"], free_ports(len(names) + 1)))
+        self.services = [s for s in SERVICES if viewer or s != "viewer"]
+        self.hub_port = free_ports(1)[0]
+        self.session = None
         self.tmp = tempfile.TemporaryDirectory(prefix="polartrack-")
         self.log_dir = Path(log_dir) if log_dir else Path(self.tmp.name)
         self.procs: dict[str, subprocess.Popen] = {}
@@ -90,7 +95,7 @@ class Pipeline:
 
     # -- processes ------------------------------------------------------------------------
     def command(self, service: str) -> list[str]:
-        base = [sys.executable, "-m", f"services.{service}", "--stream", self.stream] + mesh_args(self.ports, service)
+        base = [sys.executable, "-m", f"services.{service}", "--stream", self.stream] + client_args(self.hub_port)
         if service == "recorder":
             return base + ["--out", self.mcap]
         if service == "viewer":
@@ -105,7 +110,7 @@ class Pipeline:
             run_config = {"run_id": self.name, "source": self.source, "init_box": list(self.init_box),
                           "settings_json": self.settings.model_dump_json(), "seed": self.settings.seed,
                           "versions_json": json.dumps(versions()), "pace": self.pace}
-            waits = [s for s in self.ports if s not in ("ingest", "launcher")]
+            waits = [s for s in self.services if s != "ingest"]
             cfg.write_text(json.dumps({"source": self.source, "frames": self.frames, "pace": self.pace,
                                        "wait_for": waits, "run_config": json.dumps(run_config)}))
             return base + ["--config", str(cfg)]
@@ -145,9 +150,21 @@ class Pipeline:
             codes[service] = self.stop(service)
         for log in self.logs.values():
             log.close()
+        self.logs = {}
+        if self.session is not None:
+            self.session.close()
+            self.session = None
         return codes
 
+    def open(self) -> None:
+        """Host the router the services join."""
+        from services.bus import open_session
+
+        if self.session is None:
+            self.session = open_session(router_config(self.hub_port, self.stream))
+
     def __enter__(self) -> "Pipeline":
+        self.open()
         return self
 
     def __exit__(self, *exc) -> None:
@@ -164,18 +181,20 @@ class Pipeline:
         from tqdm import tqdm
 
         from common.msgs import Estimate, FrameInfo
-        from services.bus import BusConfig, Inbox, open_session, payload_bytes
+        from services.bus import Inbox, payload_bytes
 
-        bus = BusConfig(stream=self.stream, **_mesh_config(self.ports, "launcher"))
+        self.open()
+        bus = router_config(self.hub_port, self.stream)
+        session = self.session
         inbox = Inbox()
         truths: dict[int, tuple[float, float, bool]] = {}
         errors: dict[int, float] = {}
         t0 = time.monotonic()
         first_t = last_t = None
-        with open_session(bus) as session:
+        if True:
             subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate")),
                     session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))]
-            for s in [s for s in self.ports if s not in ("ingest", "launcher")]:
+            for s in [s for s in self.services if s != "ingest"]:
                 self.start(s)
             self.start("ingest")
             bar = tqdm(total=None, unit="frame", disable=not progress, file=sys.stderr, desc=self.name)
@@ -222,11 +241,6 @@ class Pipeline:
                          mean_err=float(errs.mean()) if errs.size else None,
                          frames_lost=int(np.sum(errs > 20.0)) if errs.size else None, fps=fps,
                          wall_s=time.monotonic() - t0, returncodes=codes)
-
-
-def _mesh_config(ports: dict[str, int], name: str) -> dict:
-    return {"listen": [f"tcp/127.0.0.1:{ports[name]}"],
-            "connect": [f"tcp/127.0.0.1:{p}" for s, p in ports.items() if s != name]}
 
 
 def versions() -> dict[str, str]:

@@ -23,7 +23,7 @@ M = TypeVar("M", bound=BaseModel)
 def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE.toml", help="TOML (or .json) file with the same keys as the flags")
     p.add_argument("--stream", help="pipeline namespace (keys polartrack/<stream>/...)")
-    p.add_argument("--mode", choices=["peer", "client"], help="Zenoh mode")
+    p.add_argument("--mode", choices=["peer", "client", "router"], help="Zenoh mode")
     p.add_argument("--listen", action="append", metavar="ENDPOINT", help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--log-level", default="INFO", help="logging level")

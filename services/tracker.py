@@ -19,12 +19,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.detector.matcher import check_hypotheses
-from common.msgs import Estimate, FrameInfo, ParticleCloud, ScoreQuery, ScoreReply, pack, unpack
+from common.msgs import FrameInfo, ScoreQuery, ScoreReply, pack, unpack
+from common.msgs.convert import estimate_msg, particles_msg
 from common.runner import make_filter
 from common.settings import TrackerSettings
 from common.tracking.observation import ObservationUnavailable
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes
+from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, payload_bytes, publisher
 
 log = logging.getLogger("polartrack.tracker")
 
@@ -38,6 +39,7 @@ class TrackerServiceSettings(BaseModel):
     query_timeout_s: float = Field(2.0, gt=0, description="querier timeout: no reply by then = no observation")
     skip_stale: bool = Field(False, description="live source: skip to the newest frame when behind")
     publish_particles: bool = Field(True, description="publish the particle cloud every frame")
+    detector_wait_s: float = Field(30.0, ge=0, description="wait this long for the detector at start")
 
 
 class RemoteObservation:
@@ -76,25 +78,6 @@ class RemoteObservation:
         return unpack(rep.scores, np.float64, (n, rep.angles)), unpack(rep.valid, np.uint8, (n,)).astype(bool)
 
 
-def estimate_msg(info: FrameInfo, state, filter_name: str, skipped: int, step_ms: float) -> Estimate:
-    m, mm = state.map_estimate, state.mmse_estimate
-    return Estimate(
-        frame_index=info.index, time_s=state.time, observed=state.observed, filter=filter_name,
-        x=m.image_x, y=m.image_y, theta_deg=m.theta, p_visible=state.p_visible, world_x=m.x, world_y=m.y,
-        vx=m.vx, vy=m.vy, speed=state.speed, mmse_x=mm.image_x, mmse_y=mm.image_y,
-        n_eff=float(state.n_eff) if np.isfinite(state.n_eff) else 0.0, resampled=bool(state.resampled),
-        frames_skipped=skipped, step_ms=step_ms, latency_ms=(time.time_ns() - info.capture_ns) / 1e6)
-
-
-def particles_msg(info: FrameInfo, state) -> ParticleCloud | None:
-    if state.particles is None:
-        return None
-    n = len(state.particles)
-    pv = state.particle_visibility if state.particle_visibility is not None else np.full(n, state.p_visible)
-    return ParticleCloud(frame_index=info.index, time_s=state.time, count=n, particles=pack(state.particles),
-                         image_xy=pack(state.particles_image), weights=pack(state.weights), p_visible=pack(pv))
-
-
 def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Counters:
     c = Counters("tracker")
     inbox = Inbox()
@@ -102,12 +85,17 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
         querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
-        pub_est = session.declare_publisher(bus.key("track/estimate"))
-        pub_cloud = session.declare_publisher(bus.key("track/particles"))
-        pub_status = session.declare_publisher(bus.key("status/tracker"))
+        pub_est = publisher(session, bus.key("track/estimate"))
+        pub_cloud = publisher(session, bus.key("track/particles"))
+        pub_status = publisher(session, bus.key("status/tracker"))
         token = session.liveliness().declare_token(bus.key("alive/tracker"))
+        presence = Presence(session, bus)
+        if not presence.wait("detector", cfg.detector_wait_s, stopper):
+            log.warning("no detector on the bus after %.0f s", cfg.detector_wait_s)
 
         def ask(q: ScoreQuery) -> ScoreReply | None:
+            if "detector" not in presence:
+                return None  # detector down: no observation now, not after a timeout
             for reply in querier.get(payload=q.SerializeToString()):
                 if reply.ok is not None:
                     try:
@@ -167,14 +155,16 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
             t0 = time.perf_counter()
             state = filt.step(info.time_s, RemoteObservation(info, ask, cfg.client, template_version))
             step_ms = 1e3 * (time.perf_counter() - t0)
-            pub_est.put(estimate_msg(info, state, st.filter, skipped, step_ms).SerializeToString(), attachment=att)
-            if cfg.publish_particles and (cloud := particles_msg(info, state)) is not None:
+            est = estimate_msg(info.index, info.capture_ns, state, st.filter, skipped, step_ms)
+            pub_est.put(est.SerializeToString(), attachment=att)
+            if cfg.publish_particles and (cloud := particles_msg(info.index, state)) is not None:
                 pub_cloud.put(cloud.SerializeToString(), attachment=att)
             c.add("published")
             if time.monotonic() - last_status > 1.0:
                 pub_status.put(c.status().SerializeToString())
                 last_status = time.monotonic()
         pub_status.put(c.status(final=True).SerializeToString())
+        presence.close()
         token.undeclare()
         sub.undeclare()
     return c

@@ -1,0 +1,499 @@
+"""Rerun logging of the bus messages: a run on the bus, or read back from its MCAP recording.
+
+:class:`RunLogger` turns the project's messages (``frame/image``, ``frame/info``,
+``track/estimate``, ``track/particles``, ``template``, ``run/config``, ``status/*``) into Rerun
+logging calls on an explicit :class:`rerun.RecordingStream` (never the global one), so several
+loggers can live in one process. It only reads messages: nothing here is part of the filters.
+
+Every call is placed on two timelines: ``frame`` (sequence = frame index) and ``capture_time``
+(timestamp = the frame's capture time, the MCAP log time). Rerun keeps the current time per
+thread, so a logger must be used from one thread (the one that calls its methods).
+
+Entity paths::
+
+    camera/image              EncodedImage (JPEG) of the frame
+    camera/particles          Points2D, particles in image pixels, coloured by weight (viridis)
+    camera/estimate           Points2D, the MAP estimate (red; grey when prediction only)
+    camera/estimate_box       LineStrips2D, template-sized box rotated by theta (once a size is known)
+    camera/mmse               Points2D, the MMSE estimate
+    camera/track              LineStrips2D, the last K MAP positions
+    camera/truth              Points2D, true centre (when known)
+    camera/truth_box          Boxes2D, true box (when the target is visible)
+    camera/template           Boxes2D, where the template was taken (at that frame)
+    ground/particles          Points2D, particles on the ground plane (world x, -y: north is up)
+    ground/estimate, ground/track, ground/truth   the same on the ground plane
+    plots/visibility/{p_visible,truth_fraction}   posterior visibility vs true visible fraction
+    plots/error/{map_px,mmse_px}                  centre error vs truth, image pixels
+    plots/theta/{estimate,truth}                  orientation (estimate relative to the template;
+                                                  truth = image orientation), degrees
+    plots/speed, plots/n_eff, plots/step_ms
+    run/config                TextDocument (static), log/services TextLog (final service counters)
+
+:func:`mcap_to_rrd` converts a recording (``polartrack view``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import sys
+import time
+from collections import OrderedDict, deque
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from common.msgs import (
+    Estimate,
+    FrameInfo,
+    ParticleCloud,
+    RawImage,
+    RunConfig,
+    ServiceStatus,
+    Template,
+    message_class,
+    msg_to_image,
+    unpack,
+)
+
+log = logging.getLogger("polartrack.rerun_log")
+
+APPLICATION_ID = "polartrack"
+FRAME = "frame"
+CAPTURE_TIME = "capture_time"
+
+RED = (230, 40, 40)
+GREY = (160, 160, 160)
+ORANGE = (255, 165, 0)
+GREEN = (40, 220, 80)
+CYAN = (0, 200, 255)
+MAGENTA = (255, 0, 255)
+
+_SERIES = {
+    "plots/visibility/p_visible": ("posterior p(visible)", RED),
+    "plots/visibility/truth_fraction": ("true visible fraction", GREEN),
+    "plots/error/map_px": ("MAP centre error (px)", RED),
+    "plots/error/mmse_px": ("MMSE centre error (px)", ORANGE),
+    "plots/theta/estimate": ("theta, estimate (deg, rel. template)", RED),
+    "plots/theta/truth": ("angle, truth (deg, image)", GREEN),
+    "plots/speed": ("speed (world units/s)", CYAN),
+    "plots/n_eff": ("N_eff", MAGENTA),
+    "plots/step_ms": ("filter step (ms)", GREY),
+}
+
+_KINDS = {
+    "frame/image": "images",
+    "frame/info": "infos",
+    "track/estimate": "estimates",
+    "track/particles": "clouds",
+    "template": "templates",
+    "run/config": "configs",
+}
+
+
+def blueprint() -> rrb.Blueprint:
+    """Camera view with the overlays, the ground plane view, and the time series."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="camera", name="Camera: particles, estimate, truth"),
+                rrb.Tabs(
+                    rrb.Spatial2DView(origin="ground", name="Ground plane (x east, up = north)"),
+                    rrb.TextDocumentView(origin="run", name="Run config"),
+                ),
+                row_shares=[3, 2],
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin="plots/visibility", name="Visibility",
+                                   axis_y=rrb.ScalarAxis(range=(0.0, 1.05))),
+                rrb.TimeSeriesView(origin="plots/error", name="Centre error vs truth (px)"),
+                rrb.TimeSeriesView(origin="plots/theta", name="Orientation (deg)"),
+                rrb.TimeSeriesView(origin="plots/speed", name="Speed"),
+                rrb.TimeSeriesView(origin="plots/n_eff", name="N_eff"),
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline=FRAME),
+        collapse_panels=False,
+    )
+
+
+def display_available() -> bool:
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+class _Bounded(OrderedDict):
+    """A dict that forgets its oldest entries beyond ``maxlen``."""
+
+    def __init__(self, maxlen: int):
+        super().__init__()
+        self.maxlen = maxlen
+
+    def __setitem__(self, key, value) -> None:
+        super().__setitem__(key, value)
+        self.move_to_end(key)
+        while len(self) > self.maxlen:
+            self.popitem(last=False)
+
+
+class RunLogger:
+    """Messages -> Rerun logging calls on ``rec``. Methods raise ``ValueError`` for malformed
+    content; :meth:`log_message` decodes, dispatches and counts (never raises for bad data)."""
+
+    def __init__(self, rec: rr.RecordingStream, *, jpeg_quality: int = 85, track_length: int = 300,
+                 memory: int = 1024):
+        import matplotlib
+
+        self.rec = rec
+        self.jpeg_quality = int(jpeg_quality)
+        self.track_image: deque[tuple[float, float]] = deque(maxlen=int(track_length))
+        self.track_world: deque[tuple[float, float]] = deque(maxlen=int(track_length))
+        self._ns_by_index: _Bounded = _Bounded(memory)   # frame index -> capture ns
+        self._truth: _Bounded = _Bounded(memory)         # frame index -> (cx, cy)
+        self._est: _Bounded = _Bounded(memory)           # frame index -> (map x, y, mmse x, y)
+        self._error_done: _Bounded = _Bounded(memory)
+        self._box_size: tuple[float, float] | None = None
+        self._truth_drawn = False
+        self._lut = matplotlib.colormaps["viridis"](np.linspace(0.0, 1.0, 256), bytes=True)[:, :3]
+        self.stats: dict[str, int] = {"messages": 0, "images": 0, "infos": 0, "estimates": 0, "clouds": 0,
+                                      "templates": 0, "configs": 0, "statuses": 0, "end_of_stream": 0,
+                                      "malformed": 0, "skipped": 0}
+        for path, (name, colour) in _SERIES.items():
+            rec.log(path, rr.SeriesLines(names=name, colors=colour, widths=1.5), static=True)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def to_file(cls, path: str | os.PathLike, *, spawn: bool = False, recording_id: str | None = None,
+                **kwargs) -> RunLogger:
+        """A logger writing to ``path`` (.rrd), with the blueprint as default; ``spawn`` also
+        starts a viewer and streams to it."""
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
+        bp = blueprint()
+        try:
+            if spawn:
+                rr.spawn(connect=False, recording=rec)
+                rec.set_sinks(rr.FileSink(str(path)), rr.GrpcSink(), default_blueprint=bp)
+            else:
+                rec.save(str(path), default_blueprint=bp)
+        except Exception:
+            rec.disconnect()  # drop the buffered start-up data quietly
+            raise
+        return cls(rec, **kwargs)
+
+    def close(self) -> None:
+        """Flush and close the sinks (writes the .rrd footer)."""
+        self.rec.flush()
+        self.rec.disconnect()
+
+    # ------------------------------------------------------------------ time
+    def _set_time(self, index: int | None, capture_ns: int | None) -> None:
+        if index is None:
+            self.rec.disable_timeline(FRAME)
+        else:
+            self.rec.set_time(FRAME, sequence=int(index))
+        if capture_ns is None and index is not None:
+            capture_ns = self._ns_by_index.get(int(index))
+        if capture_ns is None:
+            self.rec.disable_timeline(CAPTURE_TIME)
+        else:
+            self.rec.set_time(CAPTURE_TIME, timestamp=np.datetime64(int(capture_ns), "ns"))
+
+    def _scalar(self, path: str, value: float) -> None:
+        if math.isfinite(value):
+            self.rec.log(path, rr.Scalars(float(value)))
+
+    # ------------------------------------------------------------------ messages
+    def frame_image(self, msg: RawImage, capture_ns: int | None = None, index: int | None = None) -> None:
+        """The frame as JPEG at ``camera/image``. The frame index is ``index``, else the image's
+        ``frame_id`` (the ingest service writes the index there), else looked up by capture time."""
+        import cv2
+
+        img = msg_to_image(msg)
+        if capture_ns is None and msg.HasField("timestamp"):
+            capture_ns = msg.timestamp.ToNanoseconds()
+        if index is None:
+            fid = msg.frame_id.strip()
+            if fid.isdigit():
+                index = int(fid)
+            elif capture_ns is not None:
+                index = next((i for i, ns in self._ns_by_index.items() if ns == capture_ns), None)
+        ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(img, cv2.COLOR_RGB2BGR),
+                               [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        if not ok:
+            raise ValueError("JPEG encoding failed")
+        self._set_time(index, capture_ns)
+        self.rec.log("camera/image", rr.EncodedImage(contents=jpg.tobytes(), media_type="image/jpeg"))
+
+    def frame_info(self, msg: FrameInfo, capture_ns: int | None = None) -> None:
+        """Truth (centre, box, visible fraction, angle) and the frame's time; end of stream is counted."""
+        if msg.end_of_stream:
+            self.stats["end_of_stream"] += 1
+            return
+        index = int(msg.index)
+        ns = int(msg.capture_ns) if msg.capture_ns else capture_ns
+        if ns is not None:
+            self._ns_by_index[index] = ns
+        self._set_time(index, ns)
+        if not msg.HasField("truth"):
+            if self._truth_drawn:
+                for p in ("camera/truth", "camera/truth_box", "ground/truth"):
+                    self.rec.log(p, rr.Clear(recursive=False))
+                self._truth_drawn = False
+            return
+        t = msg.truth
+        self._truth_drawn = True
+        if _finite(t.centre_x, t.centre_y):
+            self._truth[index] = (t.centre_x, t.centre_y)
+            self.rec.log("camera/truth", rr.Points2D([[t.centre_x, t.centre_y]], colors=GREEN,
+                                                     radii=rr.Radius.ui_points(4.0)))
+            gw = self._image_to_ground(msg.homography, t.centre_x, t.centre_y)
+            if gw is not None:
+                self.rec.log("ground/truth", rr.Points2D([[gw[0], -gw[1]]], colors=GREEN,
+                                                         radii=rr.Radius.ui_points(4.0)))
+            else:
+                self.rec.log("ground/truth", rr.Clear(recursive=False))
+            self._centre_error(index)
+        else:
+            self.rec.log("camera/truth", rr.Clear(recursive=False))
+            self.rec.log("ground/truth", rr.Clear(recursive=False))
+        if t.visible and _finite(t.box_x, t.box_y, t.box_w, t.box_h) and t.box_w > 0 and t.box_h > 0:
+            self.rec.log("camera/truth_box", rr.Boxes2D(mins=[[t.box_x, t.box_y]], sizes=[[t.box_w, t.box_h]],
+                                                        colors=GREEN, radii=rr.Radius.ui_points(1.0)))
+            if self._box_size is None:
+                self._box_size = (t.box_w, t.box_h)
+        else:
+            self.rec.log("camera/truth_box", rr.Clear(recursive=False))
+        self._scalar("plots/visibility/truth_fraction", t.visible_fraction)
+        self._scalar("plots/theta/truth", t.angle_deg)
+
+    def estimate(self, msg: Estimate, capture_ns: int | None = None) -> None:
+        """MAP (and MMSE) estimate, the bounded track, and the per-frame series."""
+        index = int(msg.frame_index)
+        self._set_time(index, capture_ns)
+        colour = RED if msg.observed else GREY
+        if _finite(msg.x, msg.y):
+            self.track_image.append((msg.x, msg.y))
+            self.rec.log("camera/estimate", rr.Points2D(
+                [[msg.x, msg.y]], colors=colour, radii=rr.Radius.ui_points(5.0),
+                labels=f"MAP theta={msg.theta_deg:.1f} p_vis={msg.p_visible:.2f}", show_labels=False))
+            if self._box_size is not None and math.isfinite(msg.theta_deg):
+                self.rec.log("camera/estimate_box", rr.LineStrips2D(
+                    [self._rotated_box(msg.x, msg.y, *self._box_size, msg.theta_deg)], colors=colour,
+                    radii=rr.Radius.ui_points(1.0)))
+        else:
+            self.rec.log("camera/estimate", rr.Clear(recursive=False))
+            self.rec.log("camera/estimate_box", rr.Clear(recursive=False))
+        if _finite(msg.mmse_x, msg.mmse_y):
+            self.rec.log("camera/mmse", rr.Points2D([[msg.mmse_x, msg.mmse_y]], colors=ORANGE,
+                                                    radii=rr.Radius.ui_points(3.0)))
+        if len(self.track_image) >= 2:
+            self.rec.log("camera/track", rr.LineStrips2D([list(self.track_image)], colors=RED,
+                                                         radii=rr.Radius.ui_points(1.0)))
+        if _finite(msg.world_x, msg.world_y):
+            self.track_world.append((msg.world_x, -msg.world_y))
+            self.rec.log("ground/estimate", rr.Points2D([[msg.world_x, -msg.world_y]], colors=colour,
+                                                        radii=rr.Radius.ui_points(5.0)))
+            if len(self.track_world) >= 2:
+                self.rec.log("ground/track", rr.LineStrips2D([list(self.track_world)], colors=RED,
+                                                             radii=rr.Radius.ui_points(1.0)))
+        self._scalar("plots/visibility/p_visible", msg.p_visible)
+        self._scalar("plots/speed", msg.speed)
+        self._scalar("plots/theta/estimate", msg.theta_deg)
+        self._scalar("plots/n_eff", msg.n_eff)
+        self._scalar("plots/step_ms", msg.step_ms)
+        self._est[index] = (msg.x, msg.y, msg.mmse_x, msg.mmse_y)
+        self._centre_error(index)
+
+    def particles(self, msg: ParticleCloud, capture_ns: int | None = None) -> None:
+        """The cloud over the image and on the ground plane, coloured by normalised weight."""
+        n = int(msg.count)
+        state = unpack(msg.particles, np.float64, (n, 5))
+        image_xy = unpack(msg.image_xy, np.float64, (n, 2))
+        w = unpack(msg.weights, np.float64, (n,))
+        if msg.p_visible:
+            unpack(msg.p_visible, np.float64, (n,))  # size check only
+        self._set_time(int(msg.frame_index), capture_ns)
+        w = np.where(np.isfinite(w) & (w > 0), w, 0.0)
+        top = w.max() if n else 0.0
+        wn = w / top if top > 0 else np.ones(n)
+        order = np.argsort(wn, kind="stable")  # heaviest drawn last (on top)
+        colours = self._lut[np.clip((wn[order] * 255).astype(np.int64), 0, 255)]
+        radius = rr.Radius.ui_points(1.5)
+        ixy = image_xy[order]
+        ok = np.isfinite(ixy).all(axis=1)
+        self.rec.log("camera/particles", rr.Points2D(ixy[ok], colors=colours[ok], radii=radius))
+        gxy = state[order][:, [0, 2]] * (1.0, -1.0)
+        ok = np.isfinite(gxy).all(axis=1)
+        self.rec.log("ground/particles", rr.Points2D(gxy[ok], colors=colours[ok], radii=radius))
+
+    def template(self, msg: Template, capture_ns: int | None = None) -> None:
+        if len(msg.box) == 4:
+            x, y, w, h = msg.box
+            if _finite(x, y, w, h) and w > 0 and h > 0:
+                self._box_size = (w, h)
+                self._set_time(int(msg.frame_index), capture_ns)
+                self.rec.log("camera/template", rr.Boxes2D(mins=[[x, y]], sizes=[[w, h]], colors=CYAN,
+                                                           labels=f"template v{msg.version}"))
+
+    def run_config(self, msg: RunConfig) -> None:
+        try:
+            settings = json.dumps(json.loads(msg.settings_json), indent=2) if msg.settings_json else "{}"
+        except json.JSONDecodeError:
+            settings = msg.settings_json
+        text = (f"# Run {msg.run_id}\n\n* source: `{msg.source}`\n* seed: {msg.seed}\n* pace: {msg.pace}\n"
+                f"* init box: {list(msg.init_box)}\n\n```json\n{settings}\n```\n")
+        self.rec.log("run/config", rr.TextDocument(text, media_type="text/markdown"), static=True)
+
+    def service_status(self, msg: ServiceStatus, capture_ns: int | None = None) -> None:
+        if msg.final:
+            self._set_time(None, capture_ns)
+            self.rec.log("log/services", rr.TextLog(
+                f"{msg.service}: received {msg.received}, published {msg.published}, malformed {msg.malformed}, "
+                f"dropped {msg.dropped}, errors {msg.errors}, cpu {msg.cpu_s:.1f} s", level="INFO"))
+
+    # ------------------------------------------------------------------ dispatch
+    def log_message(self, topic: str, data: bytes, capture_ns: int | None = None) -> bool:
+        """Decode ``data`` of ``topic`` (suffix, e.g. ``track/estimate``) and log it. Malformed
+        messages are counted in ``stats['malformed']`` and skipped; unknown topics in ``skipped``."""
+        self.stats["messages"] += 1
+        cls = message_class(topic)
+        if cls is None or topic in ("detector/query", "detector/reply"):
+            self.stats["skipped"] += 1
+            return False
+        try:
+            msg = cls.FromString(data)
+            if cls is RawImage:
+                self.frame_image(msg, capture_ns)
+            elif cls is FrameInfo:
+                self.frame_info(msg, capture_ns)
+            elif cls is Estimate:
+                self.estimate(msg, capture_ns)
+            elif cls is ParticleCloud:
+                self.particles(msg, capture_ns)
+            elif cls is Template:
+                self.template(msg, capture_ns)
+            elif cls is RunConfig:
+                self.run_config(msg)
+            elif cls is ServiceStatus:
+                self.service_status(msg, capture_ns)
+                self.stats["statuses"] += 1
+                return True
+        except Exception as exc:  # noqa: BLE001 - any bad message is counted, never fatal
+            self.stats["malformed"] += 1
+            if self.stats["malformed"] <= 10 or self.stats["malformed"] % 100 == 0:
+                log.warning("malformed %s message (%d so far): %s: %s", topic, self.stats["malformed"],
+                            type(exc).__name__, exc)
+            return False
+        self.stats[_KINDS[topic]] += 1
+        return True
+
+    # ------------------------------------------------------------------ helpers
+    def _centre_error(self, index: int) -> None:
+        if index in self._error_done or index not in self._truth or index not in self._est:
+            return
+        tx, ty = self._truth[index]
+        x, y, mx, my = self._est[index]
+        self._set_time(index, None)
+        self._scalar("plots/error/map_px", math.hypot(x - tx, y - ty))
+        self._scalar("plots/error/mmse_px", math.hypot(mx - tx, my - ty))
+        self._error_done[index] = True
+
+    @staticmethod
+    def _image_to_ground(homography, u: float, v: float) -> tuple[float, float] | None:
+        if len(homography) != 9:
+            return None
+        h = np.asarray(homography, float).reshape(3, 3)
+        try:
+            p = np.linalg.solve(h, [u, v, 1.0])
+        except np.linalg.LinAlgError:
+            return None
+        if not np.isfinite(p).all() or abs(p[2]) < 1e-12:
+            return None
+        return float(p[0] / p[2]), float(p[1] / p[2])
+
+    @staticmethod
+    def _rotated_box(cx: float, cy: float, w: float, h: float, theta_deg: float) -> list[list[float]]:
+        """Closed outline of a w x h box at (cx, cy) turned anticlockwise as displayed (y down)."""
+        a = math.radians(theta_deg)
+        c, s = math.cos(a), math.sin(a)
+        pts = []
+        for dx, dy in ((-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2), (-w / 2, -h / 2)):
+            pts.append([cx + dx * c + dy * s, cy - dx * s + dy * c])
+        return pts
+
+
+# ---------------------------------------------------------------------- MCAP -> RRD
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _topic_suffix(topic: str) -> str:
+    t = topic.lstrip("/")
+    if t.startswith("polartrack/"):
+        parts = t.split("/", 2)
+        return parts[2] if len(parts) == 3 else t
+    return t
+
+
+def mcap_to_rrd(mcap_path: str | os.PathLike, rrd_path: str | os.PathLike, *, spawn: bool = False,
+                jpeg_quality: int = 85, track_length: int = 300) -> dict:
+    """Convert a recording written by the recorder to a Rerun .rrd file. Returns the counts
+    (``images``, ``estimates``, ``clouds``, ``malformed``, ...), ``truncated`` (the file ended
+    mid-record: converted up to there) and ``seconds``. Raises ``ValueError`` if ``mcap_path``
+    is not an MCAP file, ``OSError`` if it cannot be read."""
+    from mcap.exceptions import McapError
+    from mcap.reader import NonSeekingReader
+
+    t0 = time.perf_counter()
+    mcap_path, rrd_path = Path(mcap_path), Path(rrd_path)
+    with open(mcap_path, "rb") as fh:
+        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise ValueError(f"{mcap_path}: not an MCAP file")
+    logger = RunLogger.to_file(rrd_path, spawn=spawn, jpeg_quality=jpeg_quality, track_length=track_length)
+    logger.rec.set_log_time_enabled(False)  # the conversion's wall clock means nothing here
+    truncated = False
+    try:
+        with open(mcap_path, "rb") as fh:
+            reader = NonSeekingReader(fh)
+            try:
+                for schema, channel, message in reader.iter_messages(log_time_order=False):
+                    topic = _topic_suffix(channel.topic)
+                    cls = message_class(topic)
+                    if cls is not None and (channel.message_encoding != "protobuf" or schema is None
+                                            or schema.name != cls.DESCRIPTOR.full_name):
+                        logger.stats["messages"] += 1
+                        logger.stats["skipped"] += 1
+                        log.warning("channel %s: encoding %r schema %r, expected protobuf %s; skipped",
+                                    channel.topic, channel.message_encoding, schema and schema.name,
+                                    cls.DESCRIPTOR.full_name)
+                        continue
+                    logger.log_message(topic, message.data, int(message.log_time))
+            except (McapError, EOFError, ValueError) as exc:  # a recorder killed mid-chunk
+                truncated = True
+                log.warning("%s: read stopped early (%s: %s); converted what was read",
+                            mcap_path, type(exc).__name__, exc)
+    finally:
+        logger.close()
+    return {**logger.stats, "truncated": truncated, "rrd": str(rrd_path),
+            "seconds": round(time.perf_counter() - t0, 3)}
+
+
+def open_viewer(rrd_path: str | os.PathLike) -> bool:
+    """Open the Rerun viewer on a file (detached); False when no display is available."""
+    import subprocess
+
+    if not display_available():
+        return False
+    subprocess.Popen([sys.executable, "-m", "rerun", str(rrd_path)], start_new_session=True,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return True

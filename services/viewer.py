@@ -1,0 +1,139 @@
+"""Viewer service: logs a run on the bus to a Rerun recording (.rrd), optionally to a live viewer.
+
+Subscribes to the frame images and infos, estimates, particle clouds, template, run config and
+service statuses of ``polartrack/<stream>/...`` (bounded FIFO channels: the Zenoh callbacks do no
+work), and logs them from its main thread with :class:`services.rerun_log.RunLogger`. Stops on
+SIGINT/SIGTERM, or once an end-of-stream frame info has arrived and the bus has been quiet for
+``quiet_s``; then flushes the file and exits 0. Malformed messages are counted and skipped.
+Run: ``python -m services.viewer --help``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from services import options
+from services.bus import BusConfig, Counters, Stopper, attachment_ns, ns_attachment, open_session, payload_bytes, publisher
+
+log = logging.getLogger("polartrack.viewer")
+
+# topic -> (FIFO capacity, messages taken per pass). Infos first: they carry the frame times.
+SUBSCRIPTIONS = {
+    "frame/info": (1024, 256),
+    "frame/image": (16, 2),
+    "track/estimate": (1024, 256),
+    "track/particles": (64, 16),
+    "template": (16, 16),
+    "run/config": (16, 16),
+    "status/*": (256, 64),
+}
+
+
+class ViewerSettings(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    out: str = Field(description="Rerun recording (.rrd) to write")
+    spawn: bool = Field(False, description="also open a live Rerun viewer (when a display is available)")
+    jpeg_quality: int = Field(85, ge=1, le=100, description="JPEG quality of the logged frames")
+    track_length: int = Field(300, ge=2, le=100_000, description="estimates kept in the drawn track")
+    quiet_s: float = Field(1.0, gt=0, le=600, description="after end of stream, stop after this long without messages")
+
+    @field_validator("out")
+    @classmethod
+    def _rrd(cls, v: str) -> str:
+        if not v.endswith(".rrd"):
+            raise ValueError("must be a .rrd file name")
+        return v
+
+
+def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
+    from services.rerun_log import RunLogger, display_available
+
+    c = Counters("viewer")
+    spawn = cfg.spawn and display_available()
+    if cfg.spawn and not spawn:
+        log.warning("--spawn: no display available; writing %s only", cfg.out)
+    session = open_session(bus)  # before the file: a bus that cannot be joined leaves no empty .rrd
+    logger = RunLogger.to_file(cfg.out, spawn=spawn, jpeg_quality=cfg.jpeg_quality, track_length=cfg.track_length)
+    eos_at: float | None = None
+    try:
+        with session:
+            subs = [(topic, burst, session.declare_subscriber(bus.key(topic), zenoh.handlers.FifoChannel(cap)))
+                    for topic, (cap, burst) in SUBSCRIPTIONS.items()]
+            pub_status = publisher(session, bus.key("status/viewer"))
+            token = session.liveliness().declare_token(bus.key("alive/viewer"))
+            log.info("logging polartrack/%s/** to %s", bus.stream, cfg.out)
+            last_msg = time.monotonic()
+            last_ns = None
+            while not stopper.stopped:
+                got = 0
+                for _topic, burst, sub in subs:
+                    for _ in range(burst):
+                        sample = sub.try_recv()
+                        if sample is None:
+                            break
+                        got += 1
+                        c.add("received")
+                        topic = bus.suffix(str(sample.key_expr))
+                        ns = attachment_ns(sample)
+                        last_ns = ns if ns is not None else last_ns
+                        eos_before = logger.stats["end_of_stream"]
+                        malformed_before = logger.stats["malformed"]
+                        logger.log_message(topic, payload_bytes(sample), ns)
+                        if logger.stats["malformed"] != malformed_before:
+                            c.add("malformed")
+                        if logger.stats["end_of_stream"] != eos_before and eos_at is None:
+                            eos_at = time.monotonic()
+                            log.info("end of stream; stopping after %.1f s of quiet", cfg.quiet_s)
+                now = time.monotonic()
+                if got:
+                    last_msg = now
+                elif eos_at is not None and now - last_msg >= cfg.quiet_s:
+                    break
+                else:
+                    stopper.wait(0.005)
+            status = c.status(final=True)
+            pub_status.put(status.SerializeToString(),
+                           **({"attachment": ns_attachment(last_ns)} if last_ns is not None else {}))
+            token.undeclare()
+            for _topic, _burst, sub in subs:
+                sub.undeclare()
+    finally:
+        logger.close()
+    stats = dict(logger.stats)
+    log.info("wrote %s: %s", cfg.out, ", ".join(f"{k} {v}" for k, v in stats.items() if v))
+    return stats
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m services.viewer", description=__doc__)
+    options.add_bus_arguments(p)
+    p.add_argument("--out", metavar="FILE.rrd", help="Rerun recording to write")
+    p.add_argument("--spawn", action="store_true", default=None, help="also open a live Rerun viewer")
+    p.add_argument("--jpeg-quality", type=int, metavar="Q", help="JPEG quality of the logged frames (1-100)")
+    p.add_argument("--track-length", type=int, metavar="K", help="estimates kept in the drawn track")
+    p.add_argument("--quiet-s", type=float, metavar="S", help="after end of stream, stop after S s without messages")
+    args = p.parse_args(argv)
+    bus, cfg = options.load("viewer", args, ViewerSettings, ["out", "spawn", "jpeg_quality", "track_length", "quiet_s"])
+    try:
+        bus.zenoh_config()
+    except zenoh.ZError as exc:
+        options.fail("viewer", f"bus: {str(exc).split(' at /')[0]}")
+    from services.bus import setup_logging
+
+    setup_logging("viewer", args.log_level)
+    try:
+        serve(bus, cfg, Stopper())
+    except zenoh.ZError as exc:
+        log.error("cannot join the bus: %s", str(exc).split(" at /")[0])
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
