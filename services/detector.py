@@ -129,7 +129,18 @@ class DetectorCore:
         return rep, None
 
 
+def warm_up() -> None:
+    """Compile the numba sampler before joining the bus (first compilation takes seconds)."""
+    rng = np.random.default_rng(0)
+    img = (rng.random((160, 160, 3)) * 255).astype(np.float32)
+    matcher = PolarMatcher(Template.from_image(img, (80.0, 80.0)))
+    obs = DetectorObservation(0, 0.0, img, matcher, FrameCache())
+    obs.score_at(np.array([[80.0, 80.0, 0.0]]))
+    obs.score_grid(np.array([[80.0, 80.0]]))
+
+
 def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Counters:
+    warm_up()
     core = DetectorCore(settings)
     c = core.counters
     inbox = Inbox()

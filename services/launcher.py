@@ -176,8 +176,11 @@ class Pipeline:
         return p.read_text(errors="replace") if p.exists() else ""
 
     # -- a run ----------------------------------------------------------------------------
-    def run(self, progress: bool = True, timeout: float | None = None) -> RunResult:
-        """Start everything, wait for the end of the source, stop everything."""
+    def run(self, progress: bool = True, timeout: float | None = None, on_estimate=None) -> RunResult:
+        """Start everything, wait for the end of the source, stop everything.
+
+        ``on_estimate(pipeline, estimate)`` is called for every estimate (fault-injection tests
+        use it to kill and restart services mid-run)."""
         from tqdm import tqdm
 
         from common.msgs import Estimate, FrameInfo
@@ -191,7 +194,7 @@ class Pipeline:
         errors: dict[int, float] = {}
         t0 = time.monotonic()
         first_t = last_t = None
-        if True:
+        try:
             subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate")),
                     session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))]
             for s in [s for s in self.services if s != "ingest"]:
@@ -222,6 +225,8 @@ class Pipeline:
                             errors[e.frame_index] = float(np.hypot(e.x - cx, e.y - cy))
                     errors.setdefault(e.frame_index, float("nan"))
                     bar.update(1)
+                    if on_estimate is not None:
+                        on_estimate(self, e)
                 tracker = self.procs["tracker"]
                 ingest = self.procs["ingest"]
                 if tracker.poll() is not None and ingest.poll() is not None:
@@ -233,7 +238,8 @@ class Pipeline:
             bar.close()
             for s in subs:
                 s.undeclare()
-        codes = self.close()
+        finally:
+            codes = self.close()
         n = len(errors)
         errs = np.array([e for e in errors.values() if np.isfinite(e)])
         fps = (n - 1) / (last_t - first_t) if n > 1 and last_t > first_t else 0.0

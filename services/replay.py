@@ -65,7 +65,7 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
                                            stdout=open(logs / f"{name}.log", "ab"), stderr=subprocess.STDOUT)
         inbox = Inbox()
         new: dict[int, Estimate] = {}
-        if True:
+        if session is not None:
             sub = session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate"))
             if not wait_for_alive(session, bus, ["detector", "tracker"], 60.0):
                 raise RuntimeError("detector/tracker did not start")

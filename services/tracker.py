@@ -40,6 +40,7 @@ class TrackerServiceSettings(BaseModel):
     skip_stale: bool = Field(False, description="live source: skip to the newest frame when behind")
     publish_particles: bool = Field(True, description="publish the particle cloud every frame")
     detector_wait_s: float = Field(30.0, ge=0, description="wait this long for the detector at start")
+    template_timeout_s: float = Field(30.0, gt=0, description="timeout of the template query (first frame)")
 
 
 class RemoteObservation:
@@ -93,10 +94,12 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
         if not presence.wait("detector", cfg.detector_wait_s, stopper):
             log.warning("no detector on the bus after %.0f s", cfg.detector_wait_s)
 
-        def ask(q: ScoreQuery) -> ScoreReply | None:
+        def ask(q: ScoreQuery, timeout: float | None = None) -> ScoreReply | None:
             if "detector" not in presence:
                 return None  # detector down: no observation now, not after a timeout
-            for reply in querier.get(payload=q.SerializeToString()):
+            replies = (querier.get(payload=q.SerializeToString()) if timeout is None else
+                       session.get(bus.key("detector/score"), payload=q.SerializeToString(), timeout=timeout))
+            for reply in replies:
                 if reply.ok is not None:
                     try:
                         return ScoreReply.FromString(reply.ok.payload.to_bytes())
@@ -143,7 +146,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
                 x, y, w, h = cfg.init_box
                 tq = ScoreQuery(request_id=0, client=cfg.client, frame_index=info.index, kind=ScoreQuery.TEMPLATE,
                                 count=1, hypotheses=pack(np.array([[x + w / 2, y + h / 2, x, y, w, h]])))
-                rep = ask(tq)
+                rep = ask(tq, timeout=cfg.template_timeout_s)
                 if rep is None or rep.status != ScoreReply.OK:
                     c.add("errors")
                     log.error("no template from the detector for frame %d: %s", info.index,

@@ -1,0 +1,142 @@
+"""Malformed payloads are counted and logged, answered with an error where a reply is due, and
+never stop a service. Real processes on a private loopback router started by the test."""
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from common.msgs import FrameInfo, RawImage, ScoreQuery, ScoreReply, ServiceStatus, image_to_msg, pack
+from common.sources import open_source
+from services.bus import Inbox, ns_attachment, open_session, payload_bytes, publisher, wait_for_alive
+from services.launcher import client_args, free_ports, router_config
+
+
+@pytest.fixture()
+def bus_with(tmp_path):
+    hub = free_ports(1)[0]
+    bus = router_config(hub, f"faults{hub}")
+    session = open_session(bus)
+    procs = []
+
+    def start(name, *extra):
+        log = open(tmp_path / f"{name}.log", "ab")
+        p = subprocess.Popen([sys.executable, "-m", f"services.{name}", "--stream", bus.stream, *client_args(hub), *extra],
+                             stdout=log, stderr=subprocess.STDOUT)
+        procs.append(p)
+        return p
+
+    try:
+        yield bus, session, start
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.terminate()
+                try:
+                    p.wait(10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        session.close()
+
+
+def ask(session, bus, payload: bytes) -> ScoreReply | None:
+    for r in session.get(bus.key("detector/score"), payload=payload, timeout=5.0):
+        if r.ok is not None:
+            return ScoreReply.FromString(r.ok.payload.to_bytes())
+    return None
+
+
+def test_detector_survives_malformed_input(bus_with):
+    bus, session, start = bus_with
+    det = start("detector")
+    assert wait_for_alive(session, bus, ["detector"], 60)
+    inbox = Inbox()
+    session.declare_subscriber(bus.key("status/detector"), inbox.callback("status"))
+    img_pub = publisher(session, bus.key("frame/image"))
+    frame = open_source("synthetic:1", n_frames=1).frame(0)
+    # garbage and a truncated image, then a good one
+    img_pub.put(b"\x00\xffnot protobuf at all")
+    bad = image_to_msg(frame.image, 1, "0")
+    bad.data = bad.data[:1000]
+    img_pub.put(bad.SerializeToString())
+    img_pub.put(image_to_msg(frame.image, 1000, "0").SerializeToString(), attachment=ns_attachment(1000))
+    time.sleep(0.5)
+    # a payload that is not a ScoreQuery
+    r = ask(session, bus, b"\x08\x96\x01garbage\xff\xff")
+    assert r is not None and r.status == ScoreReply.BAD_REQUEST
+    # an unknown frame
+    q = ScoreQuery(request_id=1, client="t", frame_index=99, kind=ScoreQuery.AT, count=1, hypotheses=pack(np.zeros((1, 3))))
+    r = ask(session, bus, q.SerializeToString())
+    assert r.status == ScoreReply.UNKNOWN_FRAME and r.request_id == 1
+    # wrong sizes: count says 5 rows but the bytes hold 2
+    q = ScoreQuery(request_id=2, client="t", frame_index=0, kind=ScoreQuery.AT, count=5, hypotheses=pack(np.zeros((2, 3))))
+    r = ask(session, bus, q.SerializeToString())
+    assert r.status == ScoreReply.BAD_REQUEST and "bytes" in r.error
+    # NaN hypotheses
+    q = ScoreQuery(request_id=3, client="t", frame_index=0, kind=ScoreQuery.AT, count=1,
+                   hypotheses=pack(np.array([[np.nan, 1.0, 0.0]])))
+    r = ask(session, bus, q.SerializeToString())
+    assert r.status == ScoreReply.BAD_REQUEST and "NaN" in r.error
+    # no template yet
+    q = ScoreQuery(request_id=4, client="t", frame_index=0, kind=ScoreQuery.AT, count=1, template_version=7,
+                   hypotheses=pack(np.array([[600.0, 400.0, 0.0]])))
+    assert ask(session, bus, q.SerializeToString()).status == ScoreReply.NO_TEMPLATE
+    # and it still works: template then scores
+    cx, cy = frame.truth.centre
+    x, y, w, h = frame.truth.box
+    q = ScoreQuery(request_id=5, client="t", frame_index=0, kind=ScoreQuery.TEMPLATE, count=1,
+                   hypotheses=pack(np.array([[cx, cy, x, y, w, h]])))
+    r = ask(session, bus, q.SerializeToString())
+    assert r.status == ScoreReply.OK and r.template.version == 1
+    q = ScoreQuery(request_id=6, client="t", frame_index=0, kind=ScoreQuery.AT, count=2, template_version=1,
+                   hypotheses=pack(np.array([[cx, cy, 0.0], [cx + 200, cy, 0.0]])))
+    r = ask(session, bus, q.SerializeToString())
+    scores = np.frombuffer(r.scores, "<f8")
+    assert r.status == ScoreReply.OK and scores[0] == pytest.approx(1.0, abs=1e-5) and scores[1] < 0.6
+    assert det.poll() is None
+    deadline = time.monotonic() + 5
+    status = None
+    while time.monotonic() < deadline:
+        inbox.wait(0.5)
+        while (s := inbox.pop("status")) is not None:
+            status = ServiceStatus.FromString(payload_bytes(s))
+        if status is not None and status.malformed >= 5:
+            break
+    assert status is not None and status.malformed >= 5  # 2 images, 1 query, wrong sizes, NaN
+
+
+def test_tracker_survives_malformed_frame_info(bus_with, tmp_path):
+    bus, session, start = bus_with
+    cfg = tmp_path / "tracker.json"
+    cfg.write_text('{"init_box": [600, 350, 40, 20], "detector_wait_s": 0}')
+    trk = start("tracker", "--config", str(cfg))
+    assert wait_for_alive(session, bus, ["tracker"], 60)
+    inbox = Inbox()
+    session.declare_subscriber(bus.key("status/tracker"), inbox.callback("status"))
+    session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate"))
+    pub = publisher(session, bus.key("frame/info"))
+    pub.put(b"\xff\xfe definitely not a FrameInfo")
+    pub.put(FrameInfo(index=0, time_s=0.0, width=1280, height=720).SerializeToString())  # no detector: no template
+    time.sleep(1.0)
+    assert trk.poll() is None  # still running
+    pub.put(FrameInfo(index=1, end_of_stream=True).SerializeToString())
+    assert trk.wait(20) == 0
+    status = None
+    while (s := inbox.pop("status")) is not None:
+        status = ServiceStatus.FromString(payload_bytes(s))
+    assert status is not None and status.final and status.malformed == 1 and status.errors >= 1
+
+
+def test_bad_service_flags_exit_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("max_frames = -3\n")
+    p = subprocess.run([sys.executable, "-m", "services.detector", "--config", str(bad)], capture_output=True, text=True)
+    assert p.returncode == 2 and "max_frames" in p.stderr and p.stderr.count("\n") == 1
+    p = subprocess.run([sys.executable, "-m", "services.recorder", "--stream", "has space", "--out", "x.mcap"],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and "stream" in p.stderr
+    p = subprocess.run([sys.executable, "-m", "services.ingest", "--source", "/no/such/thing", "--wait-for", ""],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and "no such file" in p.stderr

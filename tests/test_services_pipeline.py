@@ -1,0 +1,195 @@
+"""The real services as separate processes on a private loopback Zenoh network.
+
+Every test starts its own processes (a router hosted by the test process on a free loopback
+port, services as clients, multicast scouting off) and stops them all, whatever happens.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from common.msgs import Estimate, FrameInfo, ScoreQuery, ScoreReply, pack
+from common.recording import offline_retrack, read_recording
+from common.runner import track_frames
+from common.settings import profile_for
+from common.sources import open_source
+from services.launcher import Pipeline
+
+SOURCE = "synthetic:3"
+FRAMES = 12
+
+
+def shm_files() -> set[str]:
+    try:
+        return {f for f in os.listdir("/dev/shm") if "zenoh" in f.lower()}
+    except FileNotFoundError:
+        return set()
+
+
+@pytest.fixture(scope="module")
+def recorded_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    src = open_source(SOURCE, n_frames=FRAMES)
+    settings = profile_for(src, seed=3)
+    init = src.frame(0).truth.box
+    shm_before = shm_files()
+    with Pipeline(SOURCE, init, settings, out_dir=out, frames=FRAMES, viewer=False, log_dir=out) as pipe:
+        result = pipe.run(progress=False, timeout=240)
+    return {"result": result, "settings": settings, "init": init, "dir": out, "shm_before": shm_before}
+
+
+def test_every_service_exits_cleanly(recorded_run):
+    r = recorded_run["result"]
+    assert r.returncodes == {"ingest": 0, "tracker": 0, "viewer": None, "detector": 0, "recorder": 0}, \
+        (recorded_run["dir"] / "tracker.log").read_text()[-2000:]
+    assert r.estimates == FRAMES and r.frames == FRAMES
+    assert r.mean_err < 3.0 and r.frames_lost == 0
+
+
+def test_recording_holds_everything(recorded_run):
+    rec = read_recording(recorded_run["result"].mcap)
+    n = {k: len(v) for k, v in rec.messages.items()}
+    assert n["frame/image"] == FRAMES
+    assert n["frame/info"] == FRAMES + 1  # and the end-of-stream marker
+    assert n["track/estimate"] == FRAMES and n["track/particles"] == FRAMES
+    queries = rec.decoded("detector/query")
+    replies = rec.decoded("detector/reply")
+    at = [q for q in queries if q.kind == ScoreQuery.AT]
+    assert sorted(q.frame_index for q in at) == list(range(FRAMES))  # one batched query per tracked frame
+    assert all(q.count == 200 for q in at)  # all the particles in it
+    assert len([q for q in queries if q.kind == ScoreQuery.TEMPLATE]) == 1
+    assert len(replies) == len(queries) and all(r.status == ScoreReply.OK for r in replies)
+    assert n["template"] == 1
+    # the capture time is the log time of everything about a frame
+    infos = {i.index: i for i in rec.decoded("frame/info") if not i.end_of_stream}
+    est_times = [t for t, _ in rec.messages["track/estimate"]]
+    assert est_times == [infos[i].capture_ns for i in range(FRAMES)]
+    run = rec.run
+    assert run["source"] == SOURCE and json.loads(run["init_box"]) == list(recorded_run["init"])
+    assert json.loads(run["settings_json"]) == recorded_run["settings"].model_dump(mode="json")
+    assert int(run["seed"]) == 3 and "numpy" in json.loads(run["versions_json"])
+
+
+def test_multiprocess_equals_in_process(recorded_run):
+    rec = read_recording(recorded_run["result"].mcap)
+    ests = sorted(rec.decoded("track/estimate"), key=lambda e: e.frame_index)
+    src = open_source(SOURCE, n_frames=FRAMES)
+    states = [s for _, s in track_frames(src, recorded_run["init"], recorded_run["settings"])]
+    assert len(states) == len(ests)
+    for e, s in zip(ests, states):
+        assert (e.x, e.y, e.theta_deg, e.p_visible, e.world_x, e.n_eff) == (
+            s.map_estimate.image_x, s.map_estimate.image_y, s.map_estimate.theta, s.p_visible,
+            s.map_estimate.x, s.n_eff)
+
+
+def test_offline_replay_is_bit_identical(recorded_run):
+    out = offline_retrack(recorded_run["result"].mcap)
+    assert out["identical"] and out["compared"] == FRAMES and out["query_mismatch"] == 0
+
+
+def test_retrack_with_live_detector_is_bit_identical(recorded_run):
+    from services.replay import retrack
+
+    out = retrack(recorded_run["result"].mcap, timeout=120)
+    assert out["identical"], out
+    assert out["compared"] == FRAMES
+
+
+def test_replay_detects_a_changed_estimate(recorded_run, tmp_path):
+    """Negative control: tamper with one recorded estimate; the replay must say so."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    src_path = recorded_run["result"].mcap
+    dst = tmp_path / "tampered.mcap"
+    with open(src_path, "rb") as fh, open(dst, "wb") as out:
+        reader = make_reader(fh)
+        w = Writer(out)
+        w.start()
+        schemas, channels = {}, {}
+        for m in reader.iter_metadata():
+            w.add_metadata(m.name, dict(m.metadata))
+        for schema, ch, msg in reader.iter_messages(log_time_order=False):
+            sid = 0
+            if schema is not None:
+                sid = schemas.get(schema.id) or schemas.setdefault(
+                    schema.id, w.register_schema(schema.name, schema.encoding, schema.data))
+            cid = channels.get(ch.id) or channels.setdefault(
+                ch.id, w.register_channel(ch.topic, ch.message_encoding, sid))
+            data = msg.data
+            if ch.topic == "track/estimate":
+                e = Estimate.FromString(data)
+                if e.frame_index == 5:
+                    e.x = np.nextafter(e.x, np.inf)  # one ulp
+                    data = e.SerializeToString()
+            w.add_message(cid, msg.log_time, data, msg.publish_time, msg.sequence)
+        w.finish()
+    out = offline_retrack(str(dst))
+    assert not out["identical"] and out["mismatched"] == [5]
+
+
+def test_no_zenoh_shared_memory_left(recorded_run):
+    assert shm_files() <= recorded_run["shm_before"]
+
+
+def test_detector_killed_and_restarted(tmp_path):
+    """The tracker keeps predicting without the detector and recovers when it returns; the
+    recording still holds every frame."""
+    frames = 40
+    src = open_source(SOURCE, n_frames=frames)
+    settings = profile_for(src, seed=3)
+    events = []
+
+    def inject(pipe, est):
+        if est.frame_index == 8 and not events:
+            pipe.kill("detector")
+            events.append(("killed", time.monotonic()))
+        elif events and len(events) == 1 and time.monotonic() - events[0][1] > 1.0:
+            pipe.start("detector")
+            events.append(("restarted", est.frame_index))
+
+    with Pipeline(SOURCE, src.frame(0).truth.box, settings, out_dir=tmp_path, frames=frames, viewer=False,
+                  log_dir=tmp_path) as pipe:
+        result = pipe.run(progress=False, timeout=300, on_estimate=inject)
+    assert [e[0] for e in events] == ["killed", "restarted"]
+    rec = read_recording(result.mcap)
+    ests = sorted(rec.decoded("track/estimate"), key=lambda e: e.frame_index)
+    assert [e.frame_index for e in ests] == list(range(frames))  # the tracker never stopped
+    unobserved = [e.frame_index for e in ests if not e.observed]
+    assert unobserved and min(unobserved) >= 8  # predicted only while the detector was gone
+    assert ests[-1].observed and ests[-1].p_visible > 0.9  # and recovered when it came back
+    infos = {i.index: i for i in rec.decoded("frame/info") if not i.end_of_stream}
+    last = ests[-1]
+    assert np.hypot(last.x - infos[last.frame_index].truth.centre_x, last.y - infos[last.frame_index].truth.centre_y) < 5
+    assert len(rec.messages["frame/image"]) == frames  # every frame recorded
+    assert result.returncodes["tracker"] == 0 and result.returncodes["recorder"] == 0
+
+
+def test_recorder_killed_leaves_a_readable_file(tmp_path):
+    from mcap.reader import NonSeekingReader
+
+    frames = 30
+    src = open_source(SOURCE, n_frames=frames)
+
+    def kill_recorder(pipe, est):
+        if est.frame_index == 20:
+            pipe.procs["recorder"].send_signal(signal.SIGKILL)
+
+    with Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src), out_dir=tmp_path, frames=frames,
+                  viewer=False, log_dir=tmp_path) as pipe:
+        pipe.run(progress=False, timeout=300, on_estimate=kill_recorder)
+        path = pipe.mcap
+    n = 0
+    with open(path, "rb") as fh:
+        try:
+            for _schema, channel, _msg in NonSeekingReader(fh).iter_messages():
+                n += channel.topic == "frame/image"
+        except Exception:  # noqa: BLE001 - the file ends mid-chunk: everything before is readable
+            pass
+    assert n >= 1  # complete chunks survive (4 MB chunks hold one raw frame each)
