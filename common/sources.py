@@ -3,7 +3,9 @@ the built-in synthetic scene, all yielding :class:`Frame` in source order.
 
 Source strings (the ``SOURCE`` argument of the commands):
 
-- ``synthetic`` or ``synthetic:SEED``: the built-in scene (:mod:`common.scene`);
+- ``synthetic``, ``synthetic:SEED`` or ``synthetic:SEED:LENGTH``: the built-in scene
+  (:mod:`common.scene`), 300 frames unless LENGTH says otherwise (its events keep their
+  places as fractions of the run);
 - a folder with ``img/*.jpg`` and ``groundtruth_rect.txt`` (UAV123/OTB format, ``x,y,w,h`` per
   line, ``NaN`` where the target is not visible); a folder of images without ground truth;
 - a video file readable by OpenCV;
@@ -250,12 +252,24 @@ def open_source(spec: str, n_frames: int | None = None) -> Source:
     """Open a source from its string (see the module docstring)."""
     spec = str(spec)
     if spec == "synthetic" or spec.startswith("synthetic:"):
-        seed_text = spec.partition(":")[2] or "0"
+        parts = spec.split(":")[1:]
         try:
-            seed = int(seed_text)
+            seed = int(parts[0]) if parts and parts[0] else 0
+            length = int(parts[1]) if len(parts) > 1 else None
+            if len(parts) > 2 or (length is not None and length < 2):
+                raise ValueError
         except ValueError:
-            raise SourceError(f"bad synthetic seed {seed_text!r}: use synthetic or synthetic:SEED (an integer)") from None
-        return SyntheticSource(seed=seed, n_frames=n_frames)
+            raise SourceError(f"bad synthetic source {spec!r}: use synthetic, synthetic:SEED or "
+                              f"synthetic:SEED:LENGTH (integers; LENGTH frames, default 300)") from None
+        config = None
+        if length is not None:
+            from common.scene import SceneConfig
+
+            try:
+                config = SceneConfig(n_frames=length)
+            except ValueError as exc:
+                raise SourceError(f"bad synthetic source {spec!r}: {exc}") from None
+        return SyntheticSource(seed=seed, n_frames=n_frames, config=config)
     if spec.startswith("camera:"):
         try:
             return CameraSource(int(spec.partition(":")[2]), max_frames=n_frames)

@@ -107,7 +107,10 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
                 delay = wall0 + frame.time - time.monotonic()
                 if delay > 0:
                     stopper.wait(delay)
-            if source.live:
+                elif delay < -1.0 / source.fps:
+                    c.add("dropped")  # behind the source clock: a live camera would have moved on
+                    continue
+            if source.live or cfg.pace == "realtime":
                 capture_ns = time.time_ns()
             else:
                 capture_ns = start_ns + int(round(frame.time * 1e9))

@@ -144,10 +144,14 @@ class Pipeline:
             proc.kill()
             proc.wait(5)
 
-    def close(self) -> dict[str, int | None]:
+    def close_services(self) -> dict[str, int | None]:
         codes = {}
         for service in ("ingest", "tracker", "viewer", "detector", "recorder"):
             codes[service] = self.stop(service)
+        return codes
+
+    def close(self) -> dict[str, int | None]:
+        codes = self.close_services()
         for log in self.logs.values():
             log.close()
         self.logs = {}
@@ -194,9 +198,15 @@ class Pipeline:
         errors: dict[int, float] = {}
         t0 = time.monotonic()
         first_t = last_t = None
+        from common.msgs import ServiceStatus
+
+        self.statuses: dict[str, ServiceStatus] = {}
+        self.latencies: list[float] = []
+        self.skipped = 0
         try:
             subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate")),
-                    session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))]
+                    session.declare_subscriber(bus.key("frame/info"), inbox.callback("info")),
+                    session.declare_subscriber(bus.key("status/*"), inbox.callback("status"))]
             for s in [s for s in self.services if s != "ingest"]:
                 self.start(s)
             self.start("ingest")
@@ -214,8 +224,13 @@ class Pipeline:
                     if info.HasField("truth") and not info.end_of_stream:
                         t = info.truth
                         truths[info.index] = (t.centre_x, t.centre_y, t.visible)
+                while (s := inbox.pop("status")) is not None:
+                    st = ServiceStatus.FromString(payload_bytes(s))
+                    self.statuses[st.service] = st
                 while (s := inbox.pop("estimate")) is not None:
                     e = Estimate.FromString(payload_bytes(s))
+                    self.latencies.append(e.latency_ms)
+                    self.skipped = max(self.skipped, e.frames_skipped)
                     now = time.monotonic()
                     first_t = first_t or now
                     last_t = now
@@ -236,10 +251,14 @@ class Pipeline:
                 if timeout is not None and time.monotonic() - t0 > timeout:
                     done = True
             bar.close()
+        finally:
+            codes = self.close_services()
+            while (s := inbox.pop("status")) is not None:
+                st = ServiceStatus.FromString(payload_bytes(s))
+                self.statuses[st.service] = st
             for s in subs:
                 s.undeclare()
-        finally:
-            codes = self.close()
+            self.close()
         n = len(errors)
         errs = np.array([e for e in errors.values() if np.isfinite(e)])
         fps = (n - 1) / (last_t - first_t) if n > 1 and last_t > first_t else 0.0
