@@ -110,7 +110,7 @@ class SyntheticSource(Source):
 
     def true_centre(self, i: int) -> tuple[float, float]:
         """Target centre even while hidden (the scene knows it)."""
-        x, y = self.scene.frame(i).truth.image_xy
+        x, y = self.scene.truth(i).image_xy  # no rendering
         return (float(x), float(y))
 
     def __iter__(self) -> Iterator[Frame]:

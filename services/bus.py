@@ -33,11 +33,15 @@ class BusConfig(BaseModel):
     listen: list[str] = Field(default_factory=list, description="Zenoh endpoints to listen on, e.g. tcp/127.0.0.1:7447")
     connect: list[str] = Field(default_factory=list, description="Zenoh endpoints to connect to")
     multicast_scouting: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
+    shared_memory: bool = Field(False, description="Zenoh shared-memory transport. Off by default: with it on, "
+                                "zenoh 1.10 leaves segment files in /dev/shm when a process is killed, and frames "
+                                "here travel over loopback TCP fast enough (see polartrack bench --pipeline)")
 
     def zenoh_config(self) -> zenoh.Config:
         c = zenoh.Config()
         c.insert_json5("mode", json.dumps(self.mode))
         c.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        c.insert_json5("transport/shared_memory/enabled", json.dumps(self.shared_memory))
         c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         # peers start in any order: retry connections quickly so the mesh forms in well under a second

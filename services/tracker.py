@@ -48,7 +48,7 @@ class RemoteObservation:
 
     _ids = itertools.count(1)
 
-    def __init__(self, info: FrameInfo, ask, client: str, template_version: int):
+    def __init__(self, info: FrameInfo, ask, client: str, template_version: int, resend_template=None):
         self.info = info
         self.time = info.time_s
         self.homography = np.asarray(info.homography, float).reshape(3, 3) if len(info.homography) == 9 else None
@@ -56,11 +56,15 @@ class RemoteObservation:
         self.ask = ask
         self.client = client
         self.template_version = template_version
+        self.resend_template = resend_template
 
     def _query(self, kind: int, hyps: np.ndarray) -> ScoreReply:
         q = ScoreQuery(request_id=next(self._ids), client=self.client, frame_index=self.info.index, kind=kind,
                        count=len(hyps), hypotheses=pack(hyps), template_version=self.template_version)
         rep = self.ask(q)
+        if rep is not None and rep.status == ScoreReply.NO_TEMPLATE and self.resend_template is not None:
+            self.resend_template()  # a restarted detector lost the template: give it again, retry once
+            rep = self.ask(q)
         if rep is None:
             raise ObservationUnavailable(f"no reply for frame {self.info.index}")
         if rep.status != ScoreReply.OK:
@@ -110,6 +114,12 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
 
         filt = None
         template_version = 0
+        template_bytes = b""
+        pub_template = publisher(session, bus.key("template"))
+
+        def resend_template() -> None:
+            pub_template.put(template_bytes)
+            time.sleep(0.05)  # let the detector install it before the retry
         skipped = 0
         last_status = time.monotonic()
         log.info("tracker up (%s)", st.filter)
@@ -153,10 +163,11 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
                               "no reply" if rep is None else rep.error)
                     continue
                 template_version = rep.template.version
+                template_bytes = rep.template.SerializeToString()
                 H = np.asarray(info.homography, float).reshape(3, 3) if len(info.homography) == 9 else None
                 filt = make_filter(st, cfg.init_box, H, info.time_s)
             t0 = time.perf_counter()
-            state = filt.step(info.time_s, RemoteObservation(info, ask, cfg.client, template_version))
+            state = filt.step(info.time_s, RemoteObservation(info, ask, cfg.client, template_version, resend_template))
             step_ms = 1e3 * (time.perf_counter() - t0)
             est = estimate_msg(info.index, info.capture_ns, state, st.filter, skipped, step_ms)
             pub_est.put(est.SerializeToString(), attachment=att)

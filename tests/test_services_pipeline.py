@@ -19,7 +19,8 @@ from common.recording import offline_retrack, read_recording
 from common.runner import track_frames
 from common.settings import profile_for
 from common.sources import open_source
-from services.launcher import Pipeline
+from services.bus import wait_for_alive
+from services.launcher import Pipeline, router_config
 
 SOURCE = "synthetic:3"
 FRAMES = 12
@@ -140,34 +141,40 @@ def test_no_zenoh_shared_memory_left(recorded_run):
 
 def test_detector_killed_and_restarted(tmp_path):
     """The tracker keeps predicting without the detector and recovers when it returns; the
-    recording still holds every frame."""
+    recording still holds every frame. The detector is killed at frame 8 and a new one started;
+    the frames already in flight are tracked without it."""
     frames = 40
     src = open_source(SOURCE, n_frames=frames)
     settings = profile_for(src, seed=3)
     events = []
 
     def inject(pipe, est):
-        if est.frame_index == 8 and not events:
+        if est.frame_index >= 8 and not events:
+            # pause the source while the new detector starts (seconds on a loaded machine), so the
+            # outage lasts a few frames, as a quick restart would in a live run
+            pipe.procs["ingest"].send_signal(signal.SIGSTOP)
             pipe.kill("detector")
-            events.append(("killed", time.monotonic()))
-        elif events and len(events) == 1 and time.monotonic() - events[0][1] > 1.0:
+            events.append(("killed", est.frame_index))
             pipe.start("detector")
+            assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), ["detector"], 120)
             events.append(("restarted", est.frame_index))
+            pipe.procs["ingest"].send_signal(signal.SIGCONT)
 
     with Pipeline(SOURCE, src.frame(0).truth.box, settings, out_dir=tmp_path, frames=frames, viewer=False,
                   log_dir=tmp_path) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
+        published = pipe.statuses["ingest"].published
     assert [e[0] for e in events] == ["killed", "restarted"]
     rec = read_recording(result.mcap)
     ests = sorted(rec.decoded("track/estimate"), key=lambda e: e.frame_index)
-    assert [e.frame_index for e in ests] == list(range(frames))  # the tracker never stopped
+    assert [e.frame_index for e in ests] == list(range(frames)) and published == frames  # never stopped
     unobserved = [e.frame_index for e in ests if not e.observed]
     assert unobserved and min(unobserved) >= 8  # predicted only while the detector was gone
     assert ests[-1].observed and ests[-1].p_visible > 0.9  # and recovered when it came back
     infos = {i.index: i for i in rec.decoded("frame/info") if not i.end_of_stream}
     last = ests[-1]
     assert np.hypot(last.x - infos[last.frame_index].truth.centre_x, last.y - infos[last.frame_index].truth.centre_y) < 5
-    assert len(rec.messages["frame/image"]) == frames  # every frame recorded
+    assert len(rec.messages["frame/image"]) == published  # every frame published is in the recording
     assert result.returncodes["tracker"] == 0 and result.returncodes["recorder"] == 0
 
 
@@ -188,8 +195,8 @@ def test_recorder_killed_leaves_a_readable_file(tmp_path):
     n = 0
     with open(path, "rb") as fh:
         try:
-            for _schema, channel, _msg in NonSeekingReader(fh).iter_messages():
+            for _schema, channel, _msg in NonSeekingReader(fh).iter_messages(log_time_order=False):
                 n += channel.topic == "frame/image"
         except Exception:  # noqa: BLE001 - the file ends mid-chunk: everything before is readable
             pass
-    assert n >= 1  # complete chunks survive (4 MB chunks hold one raw frame each)
+    assert n >= 5  # the frames of every complete chunk survive (a 4 MB chunk holds one raw frame)
