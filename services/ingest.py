@@ -59,6 +59,31 @@ def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true
     return info
 
 
+def frames_to_publish(source, pace: str, counters: Counters):
+    """Frames in source order; in real time, a source that can be read at any frame skips
+    straight to the frame due now when it falls behind (counted as dropped), as a camera would,
+    instead of reading frames it will not publish. The clock starts at the first frame."""
+    if pace != "realtime" or source.live or not hasattr(source, "frame"):
+        yield from source
+        return
+    n = len(source)
+    i = 0
+    wall0 = None
+    while i < n:
+        if wall0 is not None:
+            due = int((time.monotonic() - wall0) * source.fps)
+            if due > i:
+                counters.add("dropped", min(due, n) - i)
+                i = due
+                if i >= n:
+                    break
+        frame = source.frame(i)
+        if wall0 is None:
+            wall0 = time.monotonic() - frame.time
+        yield frame
+        i += 1
+
+
 def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
     from google.protobuf.json_format import Parse
 
@@ -83,10 +108,10 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             rc.start_ns = start_ns
             publisher(session, bus.key("run/config")).put(rc.SerializeToString(), attachment=ns_attachment(start_ns))
         done = -1  # highest frame index estimated
-        wall0 = time.monotonic()
+        wall0 = None  # the real-time clock starts at the first frame
         last_ns = start_ns
         index = -1
-        for frame in source:
+        for frame in frames_to_publish(source, cfg.pace, c):
             if stopper.stopped:
                 break
             index = frame.index
@@ -104,12 +129,11 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
                         done = frame.index - cfg.window
                         c.add("errors")
             elif cfg.pace == "realtime":
+                if wall0 is None:
+                    wall0 = time.monotonic() - frame.time
                 delay = wall0 + frame.time - time.monotonic()
                 if delay > 0:
                     stopper.wait(delay)
-                elif delay < -1.0 / source.fps:
-                    c.add("dropped")  # behind the source clock: a live camera would have moved on
-                    continue
             if source.live or cfg.pace == "realtime":
                 capture_ns = time.time_ns()
             else:
