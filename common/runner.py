@@ -2,7 +2,11 @@
 
 ``track_frames`` is the whole single-target pipeline without a bus: the same filter, template
 and frame cache that the services run in separate processes, so the two give identical
-estimates for the same source, seed and settings.
+estimates for the same source, seed and settings, as long as the settings keep the plain
+pipeline the services run (``TrackerSettings`` defaults; the synthetic profile). The per-frame
+mechanisms of :class:`Tracker` (stabilisation, matching at the target's scale, template
+adaptation, turning the particles with the camera) run in-process only; the real-footage
+profile turns them on.
 """
 
 from __future__ import annotations
@@ -12,12 +16,18 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
+from common.adaptation import TemplateAdapter
 from common.detector import FrameCache, PolarMatcher, Template
 from common.detector.layout import SUPPORT_RADIUS_PX
 from common.detector.observation import DetectorObservation
+from common.detector.resample import ResampledObservation, sample_template_pmatrix
+from common.scale import ScaleTracker
 from common.settings import TrackerSettings
 from common.sources import Frame
-from common.tracking import RBPF, SIR, InitialState, TrackState, WindowedML
+from common.stabilise import CameraMotionEstimator
+from common.tracking import RBPF, SIR, InitialState, TrackState, WindowedML, wrap_degrees
+from common.tracking.camera import apply_homography, homography_jacobian, image_to_world
+from common.tracking.motion import NearConstantVelocity
 
 
 class InitError(ValueError):
@@ -40,43 +50,197 @@ def check_init_box(box: tuple[float, float, float, float], width: int, height: i
                         f"{width}x{height} frame to build the template")
 
 
+def target_length_world(init_box: tuple[float, float, float, float], homography: np.ndarray | None) -> float:
+    """The initial box's long side in world units (pixels through ``homography``'s local scale)."""
+    x, y, w, h = init_box
+    long_side = max(float(w), float(h))
+    if homography is None:
+        return long_side
+    c = image_to_world(homography, np.array([x + w / 2, y + h / 2]))
+    d = float(abs(np.linalg.det(homography_jacobian(homography, c))))
+    return long_side / np.sqrt(d) if d > 0 else long_side
+
+
 def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, float],
                 homography: np.ndarray | None, t0: float):
-    """The configured filter, started on the centre of ``init_box`` (x, y, w, h) of the first frame."""
+    """The configured filter, started on the centre of ``init_box`` (x, y, w, h) of the first frame.
+
+    With ``settings.motion_noise_lengths`` / ``init_vel_lengths`` set, the driving noise and the
+    initial velocity spread are taken in target lengths (the box's long side in world units)."""
     x, y, w, h = init_box
+    length = target_length_world(init_box, homography)
+    vel_std = settings.init_vel_std if settings.init_vel_lengths is None else settings.init_vel_lengths * length
     initial = InitialState.from_image_point((x + w / 2, y + h / 2), homography, time=t0,
-                                            pos_std=settings.init_pos_std, vel_std=settings.init_vel_std)
+                                            pos_std=settings.init_pos_std, vel_std=vel_std)
+    upd = {} if settings.particles is None else {"n_particles": settings.particles}
+    if settings.motion_noise_lengths is not None:
+        q = (settings.motion_noise_lengths * length) ** 2
+        upd["motion"] = NearConstantVelocity(q_x=q, q_y=q)
     if settings.filter == "rbpf":
-        cfg = settings.rbpf if settings.particles is None else settings.rbpf.model_copy(update={"n_particles": settings.particles})
-        return RBPF(cfg, initial, seed=settings.seed)
+        return RBPF(settings.rbpf.model_copy(update=upd) if upd else settings.rbpf, initial, seed=settings.seed)
     if settings.filter == "sir":
-        cfg = settings.sir if settings.particles is None else settings.sir.model_copy(update={"n_particles": settings.particles})
-        return SIR(cfg, initial, seed=settings.seed)
+        return SIR(settings.sir.model_copy(update=upd) if upd else settings.sir, initial, seed=settings.seed)
     return WindowedML(settings.ml, initial)
+
+
+def _rotation_deg(j: np.ndarray) -> float:
+    """Rotation (degrees, anticlockwise as displayed, image y down) of a 2x2 linear map."""
+    return float(np.rad2deg(np.arctan2(j[0, 1] - j[1, 0], j[0, 0] + j[1, 1])))
+
+
+_SOURCE = object()
 
 
 @dataclass
 class Tracker:
-    """A filter with its template: ``step(frame) -> TrackState`` for frames in source order."""
+    """A filter with its template: ``step(frame) -> TrackState`` for frames in source order.
+
+    Per frame, before the filter step: the camera motion (stabiliser, for sources without a
+    homography), the camera's rotation of the particles' orientation, and the matching scale;
+    after it: the scale search and the template adaptation (each switched in the settings).
+    """
 
     settings: TrackerSettings
     matcher: PolarMatcher
     cache: FrameCache
     filter: object
+    stabiliser: CameraMotionEstimator | None = None
+    scale: ScaleTracker | None = None
+    adapter: TemplateAdapter | None = None
+    last_state: TrackState | None = None
+    homography: np.ndarray | None = None
+    """World -> image homography of the latest frame stepped (None: identity)."""
+    factor: float = 1.0
+    """Resampling factor the latest frame was matched at."""
+    frames: int = 0
+    adaptations: int = 0
+    _last_adapt_time: float = -np.inf
+    _obs: object = None
+    _world_xy: np.ndarray | None = None
+    _local: bool = False
+    _first_h: np.ndarray | None = None
 
     @classmethod
     def start(cls, first: Frame, init_box: tuple[float, float, float, float], settings: TrackerSettings) -> "Tracker":
         check_init_box(init_box, *first.size)
         x, y, w, h = init_box
-        template = Template.from_image(first.image, (x + w / 2, y + h / 2), box=init_box)
-        return cls(settings, PolarMatcher(template), FrameCache(),
-                   make_filter(settings, init_box, first.homography, first.time))
+        centre = (x + w / 2, y + h / 2)
+        stabilise = settings.stabilise == "on" or (settings.stabilise == "auto" and first.homography is None)
+        local = stabilise and settings.filter in ("rbpf", "sir") and settings.stabilised_world == "previous_frame"
+        if local:
+            length = max(float(w), float(h))
+            h0 = np.diag([length, length, 1.0])  # world unit = the target's length, origin at pixel 0
+        else:
+            h0 = None if stabilise else first.homography
+        world0 = image_to_world(h0, np.asarray(centre, float))
+        scale = ScaleTracker(settings.scale, init_box, metric_homography=h0 is not None and not stabilise,
+                             first_homography=h0, first_world_xy=world0, t0=first.time)
+        k0 = scale.factor()
+        if k0 == 1.0:
+            template = Template.from_image(first.image, centre, box=init_box)
+        else:
+            template = Template(pmatrix=sample_template_pmatrix(first.image, centre, k0), centre=centre,
+                                box=tuple(float(v) for v in init_box))
+        ad = settings.adaptation
+        adapter = TemplateAdapter(template, ad.rate, ad.anchor) if ad.enabled else None
+        stab = CameraMotionEstimator(settings.stabiliser) if stabilise else None
+        tracker = cls(settings, PolarMatcher(template), FrameCache(), make_filter(settings, init_box, h0, first.time),
+                      stabiliser=stab, scale=scale, adapter=adapter, factor=k0)
+        tracker._local = local
+        tracker._first_h = h0
+        return tracker
 
-    def observation(self, frame: Frame) -> DetectorObservation:
-        return DetectorObservation(frame.index, frame.time, frame.image, self.matcher, self.cache, frame.homography)
+    def observation(self, frame: Frame, homography=_SOURCE, factor: float | None = None):
+        """The detector's observation of ``frame`` at the current matching scale, with ``homography``
+        (default: the frame's own)."""
+        h = frame.homography if homography is _SOURCE else homography
+        k = self.factor if factor is None else factor
+        if k == 1.0:
+            return DetectorObservation(frame.index, frame.time, frame.image, self.matcher, self.cache, h)
+        return ResampledObservation(frame.index, frame.time, frame.image, self.matcher, k, h)
+
+    def _frame_homography(self, frame: Frame) -> np.ndarray | None:
+        """World -> image homography of ``frame`` (the stabiliser's, when stabilising)."""
+        if self.stabiliser is None:
+            return frame.homography
+        if self.frames == 0:
+            self.stabiliser.start(frame.image)
+            return self._first_h  # the first frame's pixels are the world (in target lengths if local)
+        prev = self.last_state
+        ex, radius = None, 0.0  # exclude the target's last estimate from the background features
+        if prev is not None:
+            ex = (prev.map_estimate.image_x, prev.map_estimate.image_y)
+            cfg = self.settings.stabiliser
+            radius = max(cfg.min_exclusion_px, cfg.exclusion_lengths * self.scale.target_length_px)
+        acc = self.stabiliser.update(frame.image, ex, radius)
+        if self._local:
+            # world = the previous frame's pixels in target lengths: seen through the frame-to-frame map
+            return self.stabiliser.last.interframe @ self.homography
+        return acc
 
     def step(self, frame: Frame) -> TrackState:
-        return self.filter.step(frame.time, self.observation(frame))
+        h = self._frame_homography(frame)
+        particles = getattr(self.filter, "particles", None)
+        world = self._world_xy
+        if self.frames > 0 and world is not None and (h is not None or self.homography is not None):
+            if self.settings.compensate_camera_rotation and particles is not None:
+                j_prev = homography_jacobian(self.homography, world)
+                j_cur = homography_jacobian(h, world)
+                rot = _rotation_deg(j_cur @ np.linalg.inv(j_prev))
+                if np.isfinite(rot) and rot != 0.0:
+                    particles[:, 4] = wrap_degrees(particles[:, 4] + rot)
+        if self.frames > 0:
+            self.scale.predict(self.homography, h, world, frame.time)
+        self.factor = self.scale.factor()
+        obs = self._obs = self.observation(frame, h)
+        state = self.filter.step(frame.time, obs)
+        self.frames += 1
+        self.last_state = state
+        self.scale.maybe_search(frame.time, frame.image, self.matcher, state)
+        self.homography = None if h is None else np.asarray(h, float)
+        if self._local:
+            # carry the particles into this frame's pixels, in the target's (new) length
+            length = self.scale.target_length_px
+            anchor = np.diag([length, length, 1.0])
+            self._reanchor(np.linalg.inv(anchor) @ self.homography)
+            self.homography = anchor
+        img = np.array([state.map_estimate.image_x, state.map_estimate.image_y])
+        self._world_xy = image_to_world(self.homography, img)
+        self._adapt(frame, state)
+        return state
+
+    def _reanchor(self, m: np.ndarray) -> None:
+        """Move the particles to a new world frame: positions through ``m`` (old world -> new
+        world), velocities through its Jacobian."""
+        p = self.filter.particles
+        pos = p[:, [0, 2]]
+        jac = homography_jacobian(m, pos)
+        vel = np.einsum("nij,nj->ni", jac, p[:, [1, 3]])
+        new = apply_homography(m, pos)
+        ok = np.all(np.isfinite(new), axis=1) & np.all(np.isfinite(vel), axis=1)
+        p[ok, 0], p[ok, 2] = new[ok, 0], new[ok, 1]
+        p[ok, 1], p[ok, 3] = vel[ok, 0], vel[ok, 1]
+
+    def _adapt(self, frame: Frame, state: TrackState) -> None:
+        ad = self.settings.adaptation
+        if self.adapter is None or state.score is None:
+            return
+        if state.p_visible < ad.min_p_visible or state.score < ad.min_score:
+            return
+        if frame.time - self._last_adapt_time < ad.interval_s - 1e-9:
+            return
+        # sample at the frame's matching scale, turned back by the refined angle at the MAP
+        obs = self._obs
+        x, y = state.map_estimate.image_x, state.map_estimate.image_y
+        theta, score = obs.refine_peak(x, y)
+        if score < ad.min_score:
+            return
+        sample = obs.pmatrix_at(x, y)
+        if sample is None:
+            return
+        self.matcher = PolarMatcher(self.adapter.blend(sample, theta))  # prepared frames stay valid
+        self._last_adapt_time = frame.time
+        self.adaptations += 1
 
 
 def track_frames(frames: Iterable[Frame], init_box: tuple[float, float, float, float],

@@ -10,6 +10,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.stabilise import StabiliserConfig
 from common.tracking import RBPFConfig, SIRConfig, WindowedMLConfig
 from common.tracking.motion import NearConstantVelocity
 
@@ -17,16 +18,66 @@ FilterName = Literal["rbpf", "sir", "ml"]
 
 
 class TemplateAdaptation(BaseModel):
-    """Template update when the posterior is confident the target is visible (not in the papers)."""
+    """Template update when the posterior is confident the target is visible (not in the papers).
+
+    The P-matrix sampled at the MAP position on the current frame (at the current matching scale)
+    is rotated back by the refined MAP angle to the template's orientation
+    (:func:`common.detector.template.rotate_pmatrix`), normalised, and blended into an adaptive
+    part ``A <- normalise((1 - rate) A + rate F)``; the template used is
+    ``normalise(anchor * H0 + (1 - anchor) * A)`` with ``H0`` the normalised original: however
+    many updates, the original keeps weight ``anchor`` (see :mod:`common.adaptation`)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    enabled: bool = Field(False, description="Adapt the template at all.")
+    enabled: bool = Field(False, description="Adapt the template at all (the real-footage profile does).")
     min_p_visible: float = Field(0.95, ge=0, le=1, description="Only when p(V=1|Z) is at least this.")
-    min_score: float = Field(0.7, ge=-1, le=1, description="... and the estimate's own score is at least this.")
+    min_score: float = Field(0.7, ge=-1, le=1, description="... and the estimate's own score (refined over the "
+                             "angle) is at least this (the real-footage profile: 0.5, see REAL_ADAPTATION).")
     rate: float = Field(0.1, ge=0, le=1, description="Blend weight of the new appearance per update.")
     anchor: float = Field(0.5, ge=0, le=1, description="Weight of the ORIGINAL template kept in every blend: "
                           "the guard against drift (the template never strays further from the original).")
+    interval_s: float = Field(0.1, ge=0, description="At most one update per this many seconds (0: every "
+                              "frame that passes the gates); keeps the adaptation rate per second, not per "
+                              "frame, whatever the frame rate.")
+
+
+class ScaleSettings(BaseModel):
+    """Matching at the target's scale (see :mod:`common.scale` and :mod:`common.detector.resample`).
+
+    The frame is matched resampled by ``k = u / s_t``: ``u`` enlarges a small target so that its
+    long side is about ``target_size_px`` (chosen once from the initial box), ``s_t`` is the
+    target's apparent size relative to the first frame, so the template's fixed footprint
+    always sees the target at about its original size."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    mode: Literal["auto", "homography", "search", "off"] = Field(
+        "auto", description="How s_t is kept: 'homography' from the source's ground-plane homography (the "
+        "Jacobian at the estimate relative to the first frame's); 'search' by comparing the MAP's match "
+        "score at neighbouring scales every search_interval_s (the camera's frame-to-frame zoom, when "
+        "stabilising, predicts between searches); 'auto' = homography when the source gives one, else "
+        "search; 'off' = s_t = 1.")
+    target_size_px: float | None = Field(
+        48.0, gt=0, description="Upsample a target whose initial box's long side is shorter than this so that it "
+        "is about this long in the matched image (the footprint the P-matrix layout was designed for: a "
+        "~50 px car). None: never upsample.")
+    max_upsample: float = Field(4.0, ge=1, description="Largest upsampling factor u.")
+    min_factor: float = Field(0.25, gt=0, le=1, description="Smallest overall resampling factor k (a target "
+                              "grown 4x beyond u is matched at 1/4 resolution, no less).")
+    steps_per_octave: int = Field(12, ge=1, description="k is quantised to 2^(n / this) (k = 1 exactly near 1).")
+    search_interval_s: float = Field(0.1, gt=0, description="Seconds between two scale searches.")
+    search_ratio: float = Field(1.12, gt=1, description="Scales tried: s / ratio, s, s * ratio.")
+    search_max_steps: int = Field(2, ge=0, description="When the best of the three is at an end, move the three "
+                                  "scales that way, at most this many steps (a fast-growing target).")
+    search_gain: float = Field(1.0, gt=0, le=1, description="Fraction of the measured log-scale correction applied.")
+    search_rate_gain: float = Field(0.3, ge=0, le=1, description="Scale-rate gain (the beta of an alpha-beta "
+                                    "filter on log s): each search's correction also updates a growth rate "
+                                    "d log(s)/dt extrapolated between searches (a target steadily approaching or "
+                                    "receding). 0: no rate.")
+    max_rate: float = Field(2.0, gt=0, description="Largest |d log(s)/dt| (1/s): e^2 = 7x a second.")
+    search_min_score: float = Field(0.5, ge=-1, le=1, description="Search only when the best score is at least "
+                                    "this (the target is seen well enough to measure its size).")
+    search_min_p_visible: float = Field(0.5, ge=0, le=1, description="... and p(V=1|Z) at least this.")
 
 
 class TrackerSettings(BaseModel):
@@ -41,9 +92,32 @@ class TrackerSettings(BaseModel):
     sir: SIRConfig = Field(default_factory=SIRConfig)
     ml: WindowedMLConfig = Field(default_factory=WindowedMLConfig)
     adaptation: TemplateAdaptation = Field(default_factory=TemplateAdaptation)
+    scale: ScaleSettings = Field(
+        default_factory=lambda: ScaleSettings(mode="off", target_size_px=None),
+        description="Matching scale. Default here: off (the services' pipeline); the real-footage profile uses "
+        "ScaleSettings()'s own defaults (upsample small targets, track the scale).")
     stabilise: Literal["auto", "on", "off"] = Field(
         "auto", description="Estimate camera motion from the background when the source gives no homography "
-        "(auto), always (on) or never (off: the image is the world frame).")
+        "(auto), always (on: replacing a source's homography; the world is then the first frame's pixels) or "
+        "never (off: the image is the world frame).")
+    stabiliser: StabiliserConfig = Field(default_factory=StabiliserConfig)
+    stabilised_world: Literal["first_frame", "previous_frame"] = Field(
+        "previous_frame", description="World frame of a stabilised run's motion model: the first frame's pixels "
+        "(world -> image homographies accumulated over the whole run: a long camera move makes that map strongly "
+        "projective, so a fixed motion noise in world pixels means very different noise in the image), or the "
+        "previous frame's pixels (the particles are carried into each new frame through the frame-to-frame "
+        "homography, velocities through its Jacobian; the world unit is the target's current length, so the "
+        "motion model is in target lengths whatever the zoom or the target's distance). The stabiliser "
+        "accumulates the first-frame homography either way.")
+    compensate_camera_rotation: bool = Field(
+        False, description="Turn the particles' orientation by the camera's own frame-to-frame image rotation at "
+        "the target (from the homographies), so the orientation walk models the target's turns only.")
+    motion_noise_lengths: float | None = Field(
+        None, ge=0, description="If set, the position filters' driving noise is sqrt(q) = this many target "
+        "lengths per s^1.5 per axis, the target length being the initial box's long side in world units "
+        "(q = (this * L)^2, overriding rbpf/sir.motion); None keeps the configured q.")
+    init_vel_lengths: float | None = Field(
+        None, ge=0, description="If set, init_vel_std = this many target lengths per second (as above).")
     init_pos_std: float = Field(0.0, ge=0, description="Initial spread of the particles' position (world units).")
     init_vel_std: float = Field(10.0, ge=0, description="Initial spread of the particles' velocity (world units "
                                 "per second): the first box says where the target is, not how it moves.")
@@ -55,6 +129,31 @@ SYNTHETIC_BETA = {"a1": 5.69, "b1": 2.81, "a0": 0.25, "b0": 8.08}
 Beta(0.25, 8.08). Pang's Beta(5, 7) / Beta(1, 7) were fitted to their own detector and video."""
 
 
+CAR_LENGTH_M = 4.5
+"""A typical car's length: converts the physical bounds below into target lengths."""
+CAR_MAX_ACCEL_MPS2 = 0.8 * 9.81
+"""The hardest manoeuvre a car makes (braking or cornering at about 0.8 g)."""
+REAL_MOTION_NOISE_LENGTHS = round(2.0 * CAR_MAX_ACCEL_MPS2 / CAR_LENGTH_M, 1)
+"""sqrt(q) for real footage, target lengths per s^1.5 (see ``motion_noise_lengths``): with the
+white-noise-acceleration model the velocity changes by sqrt(q T) (1 sigma) over T seconds; a
+0.8 g manoeuvre held for T = 1 s (1.7 lengths/s) at 2 sigma gives sqrt(q) = 3.5 lengths/s^1.5.
+Real footage's world unit follows the target's length (stabilised runs, see
+``stabilised_world``), so the same figure holds for a 15 px and a 150 px car."""
+REAL_ADAPTATION = TemplateAdaptation(enabled=True, min_score=0.5)
+"""Template adaptation for real footage: 0.5 is the 99th percentile of Pang's background Beta(1, 7)
+(1 - 0.5^7), a score the background rarely reaches; an update at most every 0.1 s blending in 10
+percent (a time constant of about a second, the time a car takes to turn), the original keeping
+half the weight."""
+REAL_PARTICLES = 400
+"""Particles for real footage (Pang: 200). The cloud must cover the prior's spread of a car that
+may brake or turn hard (above) with the prior as proposal; measured on both real sequences,
+doubling N added more frames tracked through the hardest manoeuvres and cost about 5 ms a frame
+(``particles`` overrides it)."""
+REAL_INIT_VEL_LENGTHS = round(10.0 / CAR_LENGTH_M, 1)
+"""Initial velocity spread for real footage, target lengths per second: an urban speed of
+10 m/s (2.2 lengths/s) at 1 sigma; the first box says where the target is, not how it moves."""
+
+
 def profile_for(source, filter: FilterName = "rbpf", **kw) -> TrackerSettings:
     """Default settings for a source: the synthetic scene's calibrated profile, or Pang's model
     converted to the source's frame rate, in stabilised pixels, for real footage."""
@@ -63,10 +162,22 @@ def profile_for(source, filter: FilterName = "rbpf", **kw) -> TrackerSettings:
     if getattr(source, "name", "").startswith("synthetic"):
         st = rate_adjusted_settings(source.fps, filter=filter, **kw)
         return st.model_copy(update={"rbpf": st.rbpf.model_copy(update={"likelihood": BetaRatioLikelihood(**SYNTHETIC_BETA)})})
-    # Real footage: world = the first frame's (stabilised) pixels. Motion noise in px^2 s^-3
-    # for targets a few tens of pixels long moving at up to ~100 px/s.
-    kw.setdefault("init_vel_std", 50.0)
-    return rate_adjusted_settings(source.fps, filter=filter, q_motion=400.0, **kw)
+    # Real footage: the motion noise and the initial velocity spread in target lengths (the world
+    # is then stabilised pixels, or target lengths; see REAL_MOTION_NOISE_LENGTHS).
+    # The likelihood is this detector's own calibration (the synthetic scene's, a seed kept out
+    # of every evaluation), not Pang's fit to his detector.
+    # The per-frame mechanisms (see the fields): template adaptation, matching at the target's
+    # scale (upsampling a small target, tracking its size), turning the particles with the camera;
+    # stabilisation is on by default ("auto") for any source without a homography.
+    kw.setdefault("adaptation", REAL_ADAPTATION)
+    kw.setdefault("scale", ScaleSettings())
+    kw.setdefault("compensate_camera_rotation", True)
+    kw.setdefault("motion_noise_lengths", REAL_MOTION_NOISE_LENGTHS)
+    kw.setdefault("init_vel_lengths", REAL_INIT_VEL_LENGTHS)
+    if kw.get("particles") is None:
+        kw["particles"] = REAL_PARTICLES
+    st = rate_adjusted_settings(source.fps, filter=filter, **kw)
+    return st.model_copy(update={"rbpf": st.rbpf.model_copy(update={"likelihood": BetaRatioLikelihood(**SYNTHETIC_BETA)})})
 
 
 def rate_adjusted_settings(fps: float, filter: FilterName = "rbpf", q_motion: float = 4.0, **kw) -> TrackerSettings:

@@ -31,6 +31,10 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
     p.add_argument("--seed", type=int, default=0, help="seed of the filter's random generator")
     p.add_argument("--frames", type=int, metavar="N", help="only the first N frames")
     p.add_argument("--ml-threshold", type=float, metavar="T", help="windowed ML detection threshold (default 0.6)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                   help="override a tracker setting by its dotted name (repeatable), e.g. --set stabilise=off "
+                        "--set adaptation.enabled=false --set scale.mode=off --set scale.target_size_px=null; "
+                        "VALUE is JSON (numbers, true/false, null) or else a string")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
@@ -66,7 +70,43 @@ def settings_for(args, source, filter_name: str):
     st = profile_for(source, filter=filter_name, seed=args.seed, particles=args.particles)
     if getattr(args, "ml_threshold", None) is not None:
         st = st.model_copy(update={"ml": st.ml.model_copy(update={"threshold": args.ml_threshold})})
+    if getattr(args, "overrides", None):
+        st = apply_overrides(st, args.overrides)
     return st
+
+
+def apply_overrides(settings, overrides: list[str]):
+    """``settings`` with ``KEY=VALUE`` overrides applied (dotted keys, JSON values), validated."""
+    import json
+
+    from pydantic import ValidationError
+
+    from common.cli import UsageError
+    from common.settings import TrackerSettings
+
+    data = settings.model_dump()
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise UsageError(f"--set {item!r}: expected KEY=VALUE")
+        try:
+            value = json.loads(text)
+        except ValueError:
+            value = text
+        node = data
+        parts = key.split(".")
+        for part in parts[:-1]:
+            if not isinstance(node.get(part), dict):
+                raise UsageError(f"--set {item!r}: {part!r} is not a group of settings")
+            node = node[part]
+        if parts[-1] not in node:
+            raise UsageError(f"--set {item!r}: no setting {key!r}")
+        node[parts[-1]] = value
+    try:
+        return TrackerSettings.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise UsageError(f"--set: {'.'.join(str(v) for v in err['loc'])}: {err['msg']}") from None
 
 
 def point_estimate(state) -> tuple[float, float]:

@@ -12,6 +12,7 @@ import numpy as np
 from common.detector.frame import FrameCache
 from common.detector.layout import N_ANGLES, SUPPORT_RADIUS_PX
 from common.detector.matcher import PolarMatcher, check_hypotheses
+from common.detector.sampler import sample_pmatrices
 
 
 def support_box(xy: np.ndarray, width: int, height: int) -> tuple[float, float, float, float] | None:
@@ -60,3 +61,19 @@ class DetectorObservation:
         if prep is None:
             return np.zeros((len(xy), N_ANGLES)), np.zeros(len(xy), bool)
         return self.matcher.score_grid(prep, xy)
+
+    def refine_peak(self, x: float, y: float) -> tuple[float, float]:
+        """Best angle (degrees) and its score at one point; (0, 0) out of support."""
+        prep = self._prep(np.array([[float(x), float(y)]]))
+        if prep is None or not prep.in_support(np.array([x]), np.array([y]))[0]:
+            return 0.0, 0.0
+        theta, score, _ = self.matcher.refine_peak(prep, float(x), float(y))
+        return theta, score
+
+    def pmatrix_at(self, x: float, y: float) -> np.ndarray | None:
+        """The P-matrix (12, 34 C) at one point, None out of support."""
+        xs, ys = np.array([float(x)]), np.array([float(y)])
+        prep = self._prep(np.column_stack([xs, ys]))
+        if prep is None or not prep.in_support(xs, ys)[0]:
+            return None
+        return sample_pmatrices(prep, xs, ys, np.array([True]))[0]

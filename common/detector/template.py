@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from common.detector.frame import prepare_frame
-from common.detector.layout import N_COLUMNS, N_ROWS, SUPPORT_RADIUS_PX
+from common.detector.layout import N_COLUMNS, N_ROWS, SUPPORT_RADIUS_PX, column_harmonics
 from common.detector.sampler import sample_pmatrices
 
 FORMAT_VERSION = 1
@@ -70,3 +70,38 @@ class Template:
         box = meta.get("box")
         return cls(pmatrix=pm.astype(np.complex64), centre=tuple(meta["centre"]),
                    box=None if box is None else tuple(box))
+
+
+def rotate_pmatrix(pmatrix: np.ndarray, theta_deg: float, kc: np.ndarray | None = None) -> np.ndarray:
+    """The P-matrix of the image rotated anticlockwise (as displayed) by ``theta_deg`` about the
+    P-matrix centre, from the same band-limited model the matcher correlates with.
+
+    Column ``c``'s 12 rows are samples at 30 degree steps of an angular signal whose harmonics
+    are ``k_c - 6 .. k_c + 6`` (:func:`common.detector.layout.column_harmonics`; the two edge
+    harmonics share one DFT bin and get half of it each). Rotating by ``theta`` multiplies
+    harmonic ``h`` by ``exp(-i h theta)``; at ``theta = 30 r`` degrees this is exactly
+    ``np.roll(pmatrix, r, axis=0)``. ``rotate_pmatrix(P, -theta)`` turns a P-matrix sampled on a
+    target rotated by ``theta`` back to the template's orientation.
+    """
+    P = np.asarray(pmatrix)
+    if P.ndim != 2 or P.shape[0] != N_ROWS or P.shape[1] % N_COLUMNS:
+        raise ValueError(f"expected a (12, 34 C) P-matrix, got shape {P.shape}")
+    kc_one = column_harmonics() if kc is None else np.asarray(kc, np.int64)
+    kc_all = np.tile(kc_one, P.shape[1] // N_COLUMNS)
+    th = np.deg2rad(float(theta_deg))
+    X = np.fft.fft(P.astype(np.complex128), axis=0)  # (12, M): DFT bin j of each column
+    # factor[j, c]: sum over the harmonics h == j (mod 12) of column c's band of w_h exp(-i h theta)
+    factor = np.zeros((N_ROWS, P.shape[1]), np.complex128)
+    for d in range(-6, 7):
+        h = kc_all + d
+        wgt = 0.5 if abs(d) == 6 else 1.0
+        factor[h % N_ROWS, np.arange(P.shape[1])] += wgt * np.exp(-1j * h * th)
+    return np.fft.ifft(X * factor, axis=0).astype(np.complex64)
+
+
+def correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Normalised correlation ``Re <a, b> / (|a| |b|)`` of two P-matrices (0 if either is zero)."""
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if na == 0 or nb == 0:
+        return 0.0
+    return float(np.real(np.vdot(a, b)) / (na * nb))

@@ -1,0 +1,174 @@
+"""The target's apparent scale ``s_t`` and the resampling factor the frame is matched at.
+
+Settings: :class:`common.settings.ScaleSettings`. The frame is matched resampled by
+``k_t = quantise(clip(u / s_t))`` (:mod:`common.detector.resample`):
+
+- ``u``, chosen once from the initial box: a target whose long side ``L`` is shorter than
+  ``target_size_px`` is enlarged by ``target_size_px / L`` (at most ``max_upsample``), so the
+  template's fixed footprint sees a target of about the size its layout was designed for;
+- ``s_t``, the target's size relative to the first frame:
+
+  * from a metric (ground-plane) homography: ``sqrt(det J_t(w_t)) / sqrt(det J_0(w_0))`` with
+    ``J`` the homography's Jacobian at the target's world position (an object of fixed size on
+    the ground looks that much bigger);
+  * otherwise predicted from frame to frame by the same Jacobian ratio at the same world point
+    (with a stabilised source that is the camera's own zoom or approach at the target) and
+    corrected every ``search_interval_s`` by a search: the best match over a small
+    neighbourhood of the MAP position and all angles is measured at scales ``s / r, s, s * r``
+    and a parabola through the three (in log scale) gives the correction, clipped to one step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from common.detector.matcher import PolarMatcher
+from common.detector.resample import ResampledObservation, quantise_factor
+from common.tracking.camera import homography_jacobian
+
+
+def upsample_factor(box: tuple[float, float, float, float], target_size_px: float | None,
+                    max_upsample: float) -> float:
+    """``u``: how much to enlarge the initial box's target so its long side is ``target_size_px``."""
+    long_side = max(float(box[2]), float(box[3]))
+    if target_size_px is None or long_side >= target_size_px or long_side <= 0:
+        return 1.0
+    return float(min(max_upsample, target_size_px / long_side))
+
+
+def _sqrt_det(h: np.ndarray | None, world_xy: np.ndarray) -> float:
+    j = homography_jacobian(h, np.asarray(world_xy, float))
+    d = float(abs(np.linalg.det(j)))
+    return math.sqrt(d) if d > 0 and math.isfinite(d) else float("nan")
+
+
+class ScaleTracker:
+    """``s_t`` and the matching factor; see the module docstring."""
+
+    def __init__(self, cfg, init_box: tuple[float, float, float, float], metric_homography: bool,
+                 first_homography: np.ndarray | None, first_world_xy: np.ndarray, t0: float):
+        self.cfg = cfg
+        self.mode = cfg.mode
+        if self.mode == "auto":
+            self.mode = "homography" if metric_homography else "search"
+        if self.mode == "homography" and not metric_homography:
+            self.mode = "off"  # nothing to take the scale from
+        self.u = upsample_factor(init_box, cfg.target_size_px, cfg.max_upsample)
+        self.length_px = max(float(init_box[2]), float(init_box[3]))
+        self.s = 1.0
+        self._j0 = _sqrt_det(first_homography, first_world_xy) if self.mode == "homography" else 1.0
+        self._last_search = float(t0)
+        self._last_time = float(t0)
+        self.rate = 0.0
+        """d log(s) / dt from the searches (1/s), extrapolated between them (alpha-beta filter)."""
+        self._prev_search: float | None = None
+        self.searches = 0
+        self.corrections = 0
+
+    # -- the factor -------------------------------------------------------------------------
+    def raw_factor(self, s: float | None = None) -> float:
+        s = self.s if s is None else s
+        return float(np.clip(self.u / s, self.cfg.min_factor, max(self.cfg.max_upsample, 1.0)))
+
+    def factor(self) -> float:
+        """k_t, quantised (1.0 exactly when no resampling is needed)."""
+        return quantise_factor(self.raw_factor(), self.cfg.steps_per_octave)
+
+    @property
+    def target_length_px(self) -> float:
+        """The target's current long side in image pixels (initial length times s_t)."""
+        return self.length_px * self.s
+
+    # -- per frame --------------------------------------------------------------------------
+    def predict(self, prev_h: np.ndarray | None, h: np.ndarray | None, world_xy: np.ndarray | None,
+                time: float | None = None) -> None:
+        """Update s_t for a new frame with homography ``h`` (previous ``prev_h``) at ``time`` before
+        matching; ``world_xy`` is the previous estimate's world position."""
+        if self.mode == "search" and time is not None:
+            dt = max(0.0, float(time) - self._last_time)
+            self._last_time = float(time)
+            if self.rate != 0.0 and dt > 0:
+                self.s *= math.exp(self.rate * dt)
+                self._clip()
+        if self.mode == "off" or world_xy is None:
+            return
+        if self.mode == "homography":
+            s = _sqrt_det(h, world_xy) / self._j0
+        else:
+            if h is None and prev_h is None:
+                return
+            s = self.s * _sqrt_det(h, world_xy) / _sqrt_det(prev_h, world_xy)
+        if math.isfinite(s) and s > 0:
+            self.s = s
+        self._clip()
+
+    def _clip(self) -> None:
+        """Keep s_t where the factor is not clipped (beyond, the matching scale cannot follow)."""
+        lo = self.u / max(self.cfg.max_upsample, 1.0)
+        hi = self.u / self.cfg.min_factor
+        self.s = float(np.clip(self.s, lo, hi))
+        if self.s in (lo, hi):
+            self.rate = 0.0
+
+    def maybe_search(self, time: float, image: np.ndarray, matcher: PolarMatcher, state) -> bool:
+        """Correct s_t by the scale search when due and the target is seen well; True if searched."""
+        cfg = self.cfg
+        if self.mode != "search" or state is None or state.score is None:
+            return False
+        if time - self._last_search < cfg.search_interval_s - 1e-9:
+            return False
+        if state.p_visible < cfg.search_min_p_visible or state.score < cfg.search_min_score:
+            self.rate = 0.0  # no measurement: assume no growth rather than extrapolate a stale one
+            self._prev_search = None
+            return False
+        self._last_search = float(time)
+        x, y = state.map_estimate.image_x, state.map_estimate.image_y
+        r = cfg.search_ratio
+        d = self.target_length_px / 8.0
+        off = np.array([(dx, dy) for dy in (-d, 0.0, d) for dx in (-d, 0.0, d)])
+        xy = np.array([x, y]) + off
+        cache: dict[int, float] = {}
+
+        def best_at(n: int) -> float | None:
+            """Best score over the positions and all angles at scale s * r^n (None: unusable)."""
+            if n not in cache:
+                k = self.raw_factor(self.s * r ** n)
+                if n != 0 and k == self.raw_factor(self.s * r ** (n - np.sign(n))):
+                    cache[n] = None  # clipped: same factor as the neighbour
+                else:
+                    g, ok = ResampledObservation(None, time, image, matcher, k).score_grid(xy)
+                    cache[n] = float(np.max(g[ok])) if ok[4] else None
+            return cache[n]
+
+        centre = 0
+        b = [best_at(-1), best_at(0), best_at(1)]
+        if any(v is None for v in b):
+            return False
+        # line search: while the best is at an end, move the bracket that way (up to max steps)
+        while not (b[1] >= b[0] and b[1] >= b[2]) and abs(centre) < cfg.search_max_steps:
+            centre += -1 if b[0] > b[2] else 1
+            nxt = best_at(centre + (1 if centre > 0 else -1))
+            if nxt is None:
+                break
+            b = [b[1], b[2], nxt] if centre > 0 else [nxt, b[0], b[1]]
+        self.searches += 1
+        b0, b1, b2 = b
+        den = b0 - 2 * b1 + b2
+        if b1 >= b0 and b1 >= b2:
+            step = 0.5 * (b0 - b2) / den if den < 0 else 0.0
+        else:
+            step = -1.0 if b0 > b2 else 1.0
+        step = centre + float(np.clip(step, -1.0, 1.0))
+        if step != 0.0:
+            self.s *= r ** (cfg.search_gain * step)
+            self.corrections += 1
+        if cfg.search_rate_gain > 0:
+            elapsed = float(time) - self._prev_search if self._prev_search is not None else None
+            if elapsed is not None and elapsed > 0:
+                self.rate += cfg.search_rate_gain * step * math.log(r) / elapsed
+                self.rate = float(np.clip(self.rate, -cfg.max_rate, cfg.max_rate))
+        self._prev_search = float(time)
+        self._clip()
+        return True

@@ -1,0 +1,33 @@
+"""--set KEY=VALUE overrides of the tracker settings on track / eval."""
+
+import argparse
+
+import pytest
+
+from common.cli import main
+from common.commands.common_args import settings_for
+from common.sources import open_source
+
+
+def args(*overrides):
+    return argparse.Namespace(seed=0, particles=None, ml_threshold=None, overrides=list(overrides))
+
+
+def test_overrides_reach_the_settings():
+    src = open_source("synthetic:0", n_frames=2)
+    st = settings_for(args("adaptation.enabled=true", "scale.mode=search", "scale.target_size_px=null",
+                           "stabilise=off", "rbpf.n_particles=50", "motion_noise_lengths=2.5"), src, "rbpf")
+    assert st.adaptation.enabled and st.scale.mode == "search" and st.scale.target_size_px is None
+    assert st.stabilise == "off" and st.rbpf.n_particles == 50 and st.motion_noise_lengths == 2.5
+
+
+@pytest.mark.parametrize("item, message", [
+    ("scale.nope=1", "no setting 'scale.nope'"),
+    ("scale.mode=sideways", "scale.mode: Input should be"),
+    ("stabilise", "expected KEY=VALUE"),
+    ("seed.x=1", "is not a group of settings"),
+])
+def test_bad_overrides_are_one_line_errors(capsys, item, message):
+    assert main(["track", "synthetic:1", "--frames", "2", "--set", item, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
