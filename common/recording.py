@@ -1,9 +1,10 @@
 """Reading PolarTrack MCAP recordings, and re-running the tracker offline from recorded replies.
 
-``offline_retrack`` rebuilds the filter from the recorded run configuration and steps it over
-the recorded frame infos; every query the filter makes is checked against the recorded query
-(same frame, same hypotheses, bit for bit) and answered with the recorded reply, so no detector
-is needed. The new estimates are compared with the recorded ones.
+``offline_retrack`` rebuilds the tracker from the recorded run configuration and steps it over
+the recorded frame infos (and images, when it stabilises); every query it makes is checked
+against the recorded query (same kind, frame, factor, template version and hypotheses, bit for
+bit) and answered with the recorded reply, so no detector is needed. The new estimates are
+compared with the recorded ones.
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from mcap.reader import make_reader
 
-from common.msgs import Estimate, FrameInfo, ScoreQuery, ScoreReply, TOPICS, pack, unpack
-from common.msgs.convert import estimate_msg
+from common.msgs import Estimate, ScoreQuery, ScoreReply, TOPICS, msg_to_image
+from common.msgs.convert import estimate_msg, info_frame, info_homography
 
 
 class RecordingError(ValueError):
@@ -73,72 +74,72 @@ def compare_estimates(recorded: list[Estimate], new: list[Estimate]) -> dict:
             "recorded": len(recorded), "mismatched": mismatched[:20], "missing": missing[:20]}
 
 
-class RecordedObservation:
-    """Answers the filter's queries from the recording, checking each is the recorded one."""
+class RecordedReplies:
+    """``ask`` for a :class:`common.detector_queries.QueryDetector` answered from a recording: each
+    frame's recorded queries in order, each checked against the one asked (same kind, frame,
+    factor, template version and hypotheses, bit for bit) and answered with its recorded reply."""
 
-    def __init__(self, info: FrameInfo, queue: deque, stats: dict):
-        self.info = info
-        self.time = info.time_s
-        self.homography = np.asarray(info.homography, float).reshape(3, 3) if len(info.homography) == 9 else None
-        self.image_size = (int(info.width), int(info.height))
-        self.queue = queue
+    def __init__(self, rec: Recording, stats: dict):
+        replies = {(r.client, r.request_id): r for r in rec.decoded("detector/reply")}
+        self.per_frame: dict[int, deque] = defaultdict(deque)
+        seen = set()
+        for q in rec.decoded("detector/query"):
+            key = (q.client, q.request_id)
+            if key not in seen:  # a query retried (the detector had lost the template) counts once
+                seen.add(key)
+                self.per_frame[q.frame_index].append((q, replies.get(key)))
         self.stats = stats
 
-    def _answer(self, kind: int, hyps: np.ndarray) -> ScoreReply:
-        from common.tracking.observation import ObservationUnavailable
-
-        if not self.queue:
+    def ask(self, q: ScoreQuery) -> ScoreReply | None:
+        queue = self.per_frame[q.frame_index]
+        if not queue:
             self.stats["unanswered"] += 1
-            raise ObservationUnavailable(f"no recorded query for frame {self.info.index}")
-        q, rep = self.queue.popleft()
-        if q.kind != kind or q.frame_index != self.info.index or q.hypotheses != pack(hyps):
+            return None
+        r, rep = queue.popleft()
+        same = (r.kind == q.kind and r.frame_index == q.frame_index and r.count == q.count
+                and r.hypotheses == q.hypotheses and (r.factor or 1.0) == (q.factor or 1.0)
+                and r.one_off == q.one_off and r.template_version == q.template_version)
+        if not same:
             self.stats["query_mismatch"] += 1
-        if rep is None or rep.status != ScoreReply.OK:
-            raise ObservationUnavailable("recorded reply missing or not OK")
         return rep
-
-    def score_at(self, hyps):
-        hyps = np.asarray(hyps, np.float64)
-        rep = self._answer(ScoreQuery.AT, hyps)
-        n = len(hyps)
-        return unpack(rep.scores, np.float64, (n,)), unpack(rep.valid, np.uint8, (n,)).astype(bool)
-
-    def score_grid(self, xy):
-        xy = np.asarray(xy, np.float64)
-        rep = self._answer(ScoreQuery.GRID, xy)
-        n = len(xy)
-        return unpack(rep.scores, np.float64, (n, rep.angles)), unpack(rep.valid, np.uint8, (n,)).astype(bool)
 
 
 def offline_retrack(path: str) -> dict:
-    from common.runner import make_filter
+    """Re-run the tracker over a recording's frames with the recorded detector replies and compare
+    its estimates with the recorded ones (the frames' pixels are read only when stabilising)."""
+    from common.detector_queries import QueryDetector
+    from common.runner import Tracker, stabilises
     from common.settings import TrackerSettings
+    from common.tracking.observation import ObservationUnavailable
 
     rec = read_recording(path)
     run = rec.run
     settings = TrackerSettings.model_validate_json(run["settings_json"])
     init_box = tuple(json.loads(run["init_box"]))
-    replies = {}
-    for r in rec.decoded("detector/reply"):
-        replies[(r.client, r.request_id)] = r
-    per_frame: dict[int, deque] = defaultdict(deque)
-    for q in rec.decoded("detector/query"):
-        if q.kind != ScoreQuery.TEMPLATE:
-            per_frame[q.frame_index].append((q, replies.get((q.client, q.request_id))))
-    infos = [i for i in rec.decoded("frame/info") if not i.end_of_stream]
+    stats = {"unanswered": 0, "query_mismatch": 0}
+    replies = RecordedReplies(rec, stats)
     recorded = rec.decoded("track/estimate")
     done = {e.frame_index for e in recorded}
-    stats = {"unanswered": 0, "query_mismatch": 0}
+    infos = [i for i in rec.decoded("frame/info") if not i.end_of_stream and i.index in done]  # as the live run
     if not infos:
         raise RecordingError(f"{path}: no frames recorded")
-    first = infos[0]
-    h0 = np.asarray(first.homography, float).reshape(3, 3) if len(first.homography) == 9 else None
-    filt = make_filter(settings, init_box, h0, first.time_s)
+    pixels = stabilises(settings, info_homography(infos[0]))
+    images = {int(m.frame_id): m for m in rec.decoded("frame/image")} if pixels else {}
+    tracker = None
     new = []
     for info in infos:
-        if info.index not in done:
-            continue  # a live run skipped this frame
-        state = filt.step(info.time_s, RecordedObservation(info, per_frame[info.index], stats))
+        image = None
+        if pixels:
+            if info.index not in images:
+                raise RecordingError(f"{path}: frame {info.index}'s image is not recorded (needed to stabilise)")
+            image = msg_to_image(images[info.index])
+        frame = info_frame(info, image)
+        if tracker is None:
+            try:
+                tracker = Tracker.start(frame, init_box, settings, QueryDetector(replies.ask, "offline"))
+            except ObservationUnavailable as exc:
+                raise RecordingError(f"{path}: no usable template for frame {info.index}: {exc}") from None
+        state = tracker.step(frame)
         new.append(estimate_msg(info.index, info.capture_ns, state, settings.filter))
     out = compare_estimates(recorded, new)
     out.update(stats)

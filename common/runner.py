@@ -1,12 +1,12 @@
 """In-process tracking: source frames -> detector observations -> filter steps.
 
-``track_frames`` is the whole single-target pipeline without a bus: the same filter, template
-and frame cache that the services run in separate processes, so the two give identical
-estimates for the same source, seed and settings, as long as the settings keep the plain
-pipeline the services run (``TrackerSettings`` defaults; the synthetic profile). The per-frame
-mechanisms of :class:`Tracker` (stabilisation, matching at the target's scale, template
-adaptation, turning the particles with the camera) run in-process only; the real-footage
-profile turns them on.
+:class:`Tracker` is the single-target tracker every way of running uses: the filter with its
+template and the per-frame mechanisms (stabilisation, matching at the target's scale, template
+adaptation, turning the particles with the camera), each switched in the settings. What needs
+the frame's pixels and the template goes through a detector client
+(:mod:`common.detector.client`): in-process here (``track_frames``), queries to the detector
+service in the tracker service, recorded replies on offline replay. The same source, seed and
+settings therefore give bit-identical estimates in-process, multi-process and on replay.
 """
 
 from __future__ import annotations
@@ -17,10 +17,9 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from common.adaptation import TemplateAdapter
-from common.detector import FrameCache, PolarMatcher, Template
+from common.detector import Template
+from common.detector.client import DetectorClient, LocalDetector
 from common.detector.layout import SUPPORT_RADIUS_PX
-from common.detector.observation import DetectorObservation
-from common.detector.resample import ResampledObservation, sample_template_pmatrix
 from common.scale import ScaleTracker
 from common.settings import TrackerSettings
 from common.sources import Frame
@@ -28,6 +27,7 @@ from common.stabilise import CameraMotionEstimator
 from common.tracking import RBPF, SIR, InitialState, TrackState, WindowedML, wrap_degrees
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world
 from common.tracking.motion import NearConstantVelocity
+from common.tracking.observation import ObservationUnavailable
 
 
 class InitError(ValueError):
@@ -91,6 +91,11 @@ def _rotation_deg(j: np.ndarray) -> float:
 _SOURCE = object()
 
 
+def stabilises(settings: TrackerSettings, first_homography: np.ndarray | None) -> bool:
+    """Whether a run estimates the camera motion itself (and so needs every frame's pixels)."""
+    return settings.stabilise == "on" or (settings.stabilise == "auto" and first_homography is None)
+
+
 @dataclass
 class Tracker:
     """A filter with its template: ``step(frame) -> TrackState`` for frames in source order.
@@ -98,11 +103,15 @@ class Tracker:
     Per frame, before the filter step: the camera motion (stabiliser, for sources without a
     homography), the camera's rotation of the particles' orientation, and the matching scale;
     after it: the scale search and the template adaptation (each switched in the settings).
+
+    A frame is anything with ``index``, ``time``, ``homography``, ``size`` and, when stabilising,
+    ``image`` (:class:`common.sources.Frame`; :class:`common.msgs.convert.InfoFrame` on the bus).
     """
 
     settings: TrackerSettings
-    matcher: PolarMatcher
-    cache: FrameCache
+    detector: DetectorClient
+    template: Template
+    """The template matched now (the adapted one, with adaptation)."""
     filter: object
     stabiliser: CameraMotionEstimator | None = None
     scale: ScaleTracker | None = None
@@ -121,11 +130,13 @@ class Tracker:
     _first_h: np.ndarray | None = None
 
     @classmethod
-    def start(cls, first: Frame, init_box: tuple[float, float, float, float], settings: TrackerSettings) -> "Tracker":
+    def start(cls, first: Frame, init_box: tuple[float, float, float, float], settings: TrackerSettings,
+              detector: DetectorClient | None = None) -> "Tracker":
+        """The tracker on ``first`` (not yet stepped); ``detector`` defaults to in-process matching."""
         check_init_box(init_box, *first.size)
         x, y, w, h = init_box
         centre = (x + w / 2, y + h / 2)
-        stabilise = settings.stabilise == "on" or (settings.stabilise == "auto" and first.homography is None)
+        stabilise = stabilises(settings, first.homography)
         local = stabilise and settings.filter in ("rbpf", "sir") and settings.stabilised_world == "previous_frame"
         if local:
             length = max(float(w), float(h))
@@ -136,15 +147,12 @@ class Tracker:
         scale = ScaleTracker(settings.scale, init_box, metric_homography=h0 is not None and not stabilise,
                              first_homography=h0, first_world_xy=world0, t0=first.time)
         k0 = scale.factor()
-        if k0 == 1.0:
-            template = Template.from_image(first.image, centre, box=init_box)
-        else:
-            template = Template(pmatrix=sample_template_pmatrix(first.image, centre, k0), centre=centre,
-                                box=tuple(float(v) for v in init_box))
+        detector = LocalDetector() if detector is None else detector
+        template = detector.build_template(first, centre, init_box, k0)
         ad = settings.adaptation
         adapter = TemplateAdapter(template, ad.rate, ad.anchor) if ad.enabled else None
         stab = CameraMotionEstimator(settings.stabiliser) if stabilise else None
-        tracker = cls(settings, PolarMatcher(template), FrameCache(), make_filter(settings, init_box, h0, first.time),
+        tracker = cls(settings, detector, template, make_filter(settings, init_box, h0, first.time),
                       stabiliser=stab, scale=scale, adapter=adapter, factor=k0)
         tracker._local = local
         tracker._first_h = h0
@@ -154,10 +162,7 @@ class Tracker:
         """The detector's observation of ``frame`` at the current matching scale, with ``homography``
         (default: the frame's own)."""
         h = frame.homography if homography is _SOURCE else homography
-        k = self.factor if factor is None else factor
-        if k == 1.0:
-            return DetectorObservation(frame.index, frame.time, frame.image, self.matcher, self.cache, h)
-        return ResampledObservation(frame.index, frame.time, frame.image, self.matcher, k, h)
+        return self.detector.observation(frame, h, self.factor if factor is None else factor)
 
     def _frame_homography(self, frame: Frame) -> np.ndarray | None:
         """World -> image homography of ``frame`` (the stabiliser's, when stabilising)."""
@@ -196,7 +201,10 @@ class Tracker:
         state = self.filter.step(frame.time, obs)
         self.frames += 1
         self.last_state = state
-        self.scale.maybe_search(frame.time, frame.image, self.matcher, state)
+        try:
+            self.scale.maybe_search(frame.time, lambda k, xy: self.detector.scale_grid(frame, k, xy), state)
+        except ObservationUnavailable:
+            pass  # a remote detector did not answer: no correction this time
         self.homography = None if h is None else np.asarray(h, float)
         if self._local:
             # carry the particles into this frame's pixels, in the target's (new) length
@@ -232,13 +240,17 @@ class Tracker:
         # sample at the frame's matching scale, turned back by the refined angle at the MAP
         obs = self._obs
         x, y = state.map_estimate.image_x, state.map_estimate.image_y
-        theta, score = obs.refine_peak(x, y)
-        if score < ad.min_score:
-            return
-        sample = obs.pmatrix_at(x, y)
+        try:
+            theta, score = obs.refine_peak(x, y)
+            if score < ad.min_score:
+                return
+            sample = obs.pmatrix_at(x, y)
+        except ObservationUnavailable:
+            return  # a remote detector did not answer: no update this time
         if sample is None:
             return
-        self.matcher = PolarMatcher(self.adapter.blend(sample, theta))  # prepared frames stay valid
+        self.template = self.adapter.blend(sample, theta)
+        self.detector.use_template(self.template)
         self._last_adapt_time = frame.time
         self.adaptations += 1
 

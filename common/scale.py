@@ -24,8 +24,7 @@ import math
 
 import numpy as np
 
-from common.detector.matcher import PolarMatcher
-from common.detector.resample import ResampledObservation, quantise_factor
+from common.detector.resample import quantise_factor
 from common.tracking.camera import homography_jacobian
 
 
@@ -112,8 +111,12 @@ class ScaleTracker:
         if self.s in (lo, hi):
             self.rate = 0.0
 
-    def maybe_search(self, time: float, image: np.ndarray, matcher: PolarMatcher, state) -> bool:
-        """Correct s_t by the scale search when due and the target is seen well; True if searched."""
+    def maybe_search(self, time: float, grid_at, state) -> bool:
+        """Correct s_t by the scale search when due and the target is seen well; True if searched.
+
+        ``grid_at(k, xy)`` -> (scores (N, 48), valid (N,)): the frame's scores at ``xy`` matched at
+        factor ``k``, each call on its own resampled crop
+        (:meth:`common.detector.client.LocalDetector.scale_grid`)."""
         cfg = self.cfg
         if self.mode != "search" or state is None or state.score is None:
             return False
@@ -138,7 +141,7 @@ class ScaleTracker:
                 if n != 0 and k == self.raw_factor(self.s * r ** (n - np.sign(n))):
                     cache[n] = None  # clipped: same factor as the neighbour
                 else:
-                    g, ok = ResampledObservation(None, time, image, matcher, k).score_grid(xy)
+                    g, ok = grid_at(k, xy)
                     cache[n] = float(np.max(g[ok])) if ok[4] else None
             return cache[n]
 

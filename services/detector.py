@@ -1,16 +1,19 @@
 """Detector service: answers batched polar-match queries over Zenoh.
 
-Holds the last few frames and the current template; answers "frame F, these N hypotheses" with
-scores, preparing each frame once per client over only the regions queried (the same
-:class:`common.detector.observation.DetectorObservation` code path as an in-process run, so
-the scores are bit-identical). Publishes a copy of every query and reply for the recorder
-(Zenoh queries are invisible to subscribers). Run: ``python -m services.detector --help``.
+Holds the last few frames and the recent templates (by version); answers "frame F, these N
+hypotheses, at resampling factor k" with scores, the template query of the first frame, and the
+template adaptation's PEAK (refined angle, score and P-matrix at one point). Each query is
+answered with the same functions an in-process run calls (:mod:`common.detector.client`), on
+the same kept per-frame observation (regions prepared once per client and frame), so the
+numbers are bit-identical. Publishes a copy of every query and reply for the recorder (Zenoh
+queries are invisible to subscribers). Run: ``python -m services.detector --help``.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import math
 import time
 from collections import OrderedDict
 
@@ -18,13 +21,15 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.detector import FrameCache, PolarMatcher, Template
-from common.detector.layout import N_ANGLES, N_COLUMNS, N_ROWS
+from common.detector.client import frame_observation, make_template, one_off_grid
+from common.detector.layout import N_ANGLES
 from common.detector.observation import DetectorObservation
-from common.msgs import RawImage, ScoreQuery, ScoreReply, pack, unpack
+from common.msgs import ScoreQuery, ScoreReply, pack, unpack
 from common.msgs import Template as TemplateMsg
-from common.msgs import msg_to_image
+from common.msgs.convert import msg_to_template, template_to_msg
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, attachment_ns, ns_attachment, open_session, payload_bytes, publisher
+from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, publisher
+from services.frame_images import decode_image
 
 log = logging.getLogger("polartrack.detector")
 
@@ -36,17 +41,19 @@ class DetectorSettings(BaseModel):
     wait_frame_s: float = Field(1.0, ge=0, description="How long a query waits for its frame's image to arrive")
 
 
-def template_to_msg(t: Template, version: int, frame_index: int) -> TemplateMsg:
-    return TemplateMsg(version=version, rows=t.pmatrix.shape[0], columns=t.pmatrix.shape[1],
-                       pmatrix=np.ascontiguousarray(t.pmatrix, np.complex64).tobytes(), centre_x=t.centre[0],
-                       centre_y=t.centre[1], box=list(t.box or ()), frame_index=frame_index)
+MIN_FACTOR, MAX_FACTOR = 1.0 / 64.0, 64.0
+"""Resampling factors a query may ask for (beyond them a malformed query could ask for a huge crop)."""
+
+WIDTHS = {ScoreQuery.AT: 3, ScoreQuery.GRID: 2, ScoreQuery.TEMPLATE: 6, ScoreQuery.PEAK: 2}
+"""Values per hypothesis of each query kind."""
 
 
-def msg_to_template(m: TemplateMsg) -> Template:
-    if m.rows != N_ROWS or m.columns % N_COLUMNS or m.columns == 0:
-        raise ValueError(f"template P-matrix {m.rows}x{m.columns}, expected 12 x 34C")
-    pm = unpack(m.pmatrix, np.complex64, (m.rows, m.columns))
-    return Template(pmatrix=pm, centre=(m.centre_x, m.centre_y), box=tuple(m.box) if len(m.box) == 4 else None)
+def query_factor(q: ScoreQuery) -> float:
+    """The query's resampling factor (0, unset: 1); ValueError outside [MIN_FACTOR, MAX_FACTOR]."""
+    k = 1.0 if q.factor == 0 else float(q.factor)
+    if not (math.isfinite(k) and MIN_FACTOR <= k <= MAX_FACTOR):
+        raise ValueError(f"resampling factor {q.factor} is outside [{MIN_FACTOR:g}, {MAX_FACTOR:g}]")
+    return k
 
 
 class DetectorCore:
@@ -57,6 +64,9 @@ class DetectorCore:
         self.frames: OrderedDict[int, tuple[np.ndarray, float]] = OrderedDict()
         self.templates: OrderedDict[int, PolarMatcher] = OrderedDict()
         self.caches: dict[str, FrameCache] = {}
+        self.observations: OrderedDict[tuple, object] = OrderedDict()
+        """(client, frame, factor, template version) -> the frame's observation, kept so the
+        template adaptation's PEAK reuses the region the filter's query prepared (as in-process)."""
         self.counters = Counters("detector")
 
     def add_frame(self, index: int, image: np.ndarray, time_s: float) -> None:
@@ -69,6 +79,17 @@ class DetectorCore:
         while len(self.templates) > 4:
             self.templates.popitem(last=False)
 
+    def observation(self, q: ScoreQuery, k: float, matcher: PolarMatcher, image: np.ndarray, time_s: float):
+        """The frame's observation for the query's client, factor and template (kept for later queries)."""
+        key = (q.client, q.frame_index, k, q.template_version)
+        obs = self.observations.get(key)
+        if obs is None:
+            cache = self.caches.setdefault(q.client, FrameCache())
+            obs = self.observations[key] = frame_observation(q.frame_index, time_s, image, matcher, cache, k)
+            while len(self.observations) > self.settings.max_frames:
+                self.observations.popitem(last=False)
+        return obs
+
     def handle(self, q: ScoreQuery) -> tuple[ScoreReply, TemplateMsg | None]:
         """Answer one query. Never raises: problems become an error status."""
         rep = ScoreReply(request_id=q.request_id, client=q.client, frame_index=q.frame_index)
@@ -77,13 +98,16 @@ class DetectorCore:
             rep.status, rep.error = ScoreReply.UNKNOWN_FRAME, f"frame {q.frame_index} is not held"
             return rep, None
         image, time_s = frame
-        width = {ScoreQuery.AT: 3, ScoreQuery.GRID: 2, ScoreQuery.TEMPLATE: 6}.get(q.kind)
+        width = WIDTHS.get(q.kind)
         try:
             if width is None:
                 raise ValueError(f"unknown query kind {q.kind}")
             hyps = unpack(q.hypotheses, np.float64, (q.count, width))
             if not np.all(np.isfinite(hyps)):
                 raise ValueError("hypotheses contain NaN or infinite coordinates")
+            k = query_factor(q)
+            if q.kind in (ScoreQuery.TEMPLATE, ScoreQuery.PEAK) and q.count != 1:
+                raise ValueError(f"a {ScoreQuery.Kind.Name(q.kind)} query has exactly one row")
         except ValueError as exc:
             self.counters.add("malformed")
             rep.status, rep.error = ScoreReply.BAD_REQUEST, str(exc)
@@ -91,10 +115,8 @@ class DetectorCore:
         t0 = time.perf_counter()
         try:
             if q.kind == ScoreQuery.TEMPLATE:
-                if q.count != 1:
-                    raise ValueError("a TEMPLATE query has exactly one row (cx, cy, x, y, w, h)")
-                cx, cy, bx, by, bw, bh = hyps[0]
-                template = Template.from_image(image, (cx, cy), box=(bx, by, bw, bh))
+                cx, cy, bx, by, bw, bh = (float(v) for v in hyps[0])
+                template = make_template(image, (cx, cy), (bx, by, bw, bh), k)
                 version = (max(self.templates) if self.templates else 0) + 1
                 self.install_template(version, template)
                 tm = template_to_msg(template, version, q.frame_index)
@@ -105,14 +127,28 @@ class DetectorCore:
             if matcher is None:
                 rep.status, rep.error = ScoreReply.NO_TEMPLATE, f"no template version {q.template_version}"
                 return rep, None
-            cache = self.caches.setdefault(q.client, FrameCache())
-            obs = DetectorObservation(q.frame_index, time_s, image, matcher, cache)
-            if q.kind == ScoreQuery.AT:
-                scores, valid = obs.score_at(hyps)
-                rep.angles = 1
-            else:
-                scores, valid = obs.score_grid(hyps)
+            if q.one_off:
+                if q.kind != ScoreQuery.GRID:
+                    raise ValueError("one_off is for GRID queries only")
+                scores, valid = one_off_grid(time_s, image, matcher, k, hyps)
                 rep.angles = N_ANGLES
+            else:
+                obs = self.observation(q, k, matcher, image, time_s)
+                if q.kind == ScoreQuery.AT:
+                    scores, valid = obs.score_at(hyps)
+                    rep.angles = 1
+                elif q.kind == ScoreQuery.GRID:
+                    scores, valid = obs.score_grid(hyps)
+                    rep.angles = N_ANGLES
+                else:  # PEAK: the refined angle and score, then the P-matrix, as Tracker._adapt asks them
+                    x, y = float(hyps[0, 0]), float(hyps[0, 1])
+                    theta, score = obs.refine_peak(x, y)
+                    pm = obs.pmatrix_at(x, y)
+                    scores, valid = np.array([theta, score], np.float64), np.array([pm is not None])
+                    rep.angles = 2
+                    if pm is not None:
+                        rep.pmatrix = np.ascontiguousarray(pm, np.complex64).tobytes()
+                        rep.pmatrix_columns = pm.shape[1]
         except ValueError as exc:
             self.counters.add("malformed")
             rep.status, rep.error = ScoreReply.BAD_REQUEST, str(exc)
@@ -162,14 +198,12 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
             while (s := inbox.pop("image")) is not None:
                 c.add("received")
                 try:
-                    msg = RawImage.FromString(payload_bytes(s))
-                    idx = int(msg.frame_id)
-                    img = msg_to_image(msg)
+                    idx, img, ns = decode_image(s)
                 except Exception as exc:  # noqa: BLE001
                     c.add("malformed")
                     log.warning("malformed frame image: %s", exc)
                     continue
-                capture_ns[idx] = attachment_ns(s) or msg.timestamp.ToNanoseconds()
+                capture_ns[idx] = ns
                 while len(capture_ns) > settings.max_frames:
                     capture_ns.popitem(last=False)
                 core.add_frame(idx, img, capture_ns[idx] * 1e-9)
@@ -211,6 +245,11 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
                 inbox.wait(0.01)
                 drain_images()
             drain_templates()
+            # an adapted template travels on the template key: the query asking for it may overtake it
+            while (q.kind != ScoreQuery.TEMPLATE and q.template_version not in core.templates
+                   and time.monotonic() < deadline and not stopper.stopped):
+                time.sleep(0.002)
+                drain_templates()
             reply, new_template = core.handle(q)
             ns = capture_ns.get(q.frame_index, time.time_ns())
             att = ns_attachment(ns)

@@ -1,31 +1,34 @@
-"""Tracker service: runs the configured filter, querying the detector once per frame.
+"""Tracker service: runs :class:`common.runner.Tracker`, querying the detector service.
 
-Receives frame infos (time, homography; never pixels), asks the detector for the template on
-the first frame, then per frame makes one batched query with all hypotheses through
-:class:`RemoteObservation`, and publishes the estimate and the particle cloud. A missing reply
-(detector down, timeout) is "no observation": the filter predicts only. With ``skip_stale``
-(live sources) it skips to the newest frame when it falls behind, counting the skipped ones.
-Run: ``python -m services.tracker --help``.
+Receives frame infos (time, homography), and the frame images too when (and only when) the
+settings stabilise (the camera motion is estimated here, from the pixels). The Tracker is the
+in-process one with a detector client that sends queries (:mod:`common.detector_queries`): the
+template on the first frame, one batched query with all hypotheses per frame, and, as the
+settings ask, the scale search's queries and the template adaptation's PEAK, the adapted
+template going out on the ``template`` key with a new version. Publishes the estimate and the
+particle cloud. A missing reply (detector down, timeout) is "no observation": the filter
+predicts only. With ``skip_stale`` (live sources) it skips to the newest frame when it falls
+behind, counting the skipped ones. Run: ``python -m services.tracker --help``.
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
 import logging
 import time
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.detector.matcher import check_hypotheses
-from common.msgs import FrameInfo, ScoreQuery, ScoreReply, pack, unpack
-from common.msgs.convert import estimate_msg, particles_msg
-from common.runner import make_filter
+from common.detector.template import Template
+from common.detector_queries import QueryDetector
+from common.msgs import FrameInfo, ScoreQuery, ScoreReply
+from common.msgs.convert import estimate_msg, info_frame, info_homography, particles_msg, template_to_msg
+from common.runner import InitError, Tracker, stabilises
 from common.settings import TrackerSettings
 from common.tracking.observation import ObservationUnavailable
 from services import options
 from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, payload_bytes, publisher
+from services.frame_images import FrameImages
 
 log = logging.getLogger("polartrack.tracker")
 
@@ -41,46 +44,8 @@ class TrackerServiceSettings(BaseModel):
     publish_particles: bool = Field(True, description="publish the particle cloud every frame")
     detector_wait_s: float = Field(30.0, ge=0, description="wait this long for the detector at start")
     template_timeout_s: float = Field(30.0, gt=0, description="timeout of the template query (first frame)")
-
-
-class RemoteObservation:
-    """A :class:`common.tracking.observation.FrameObservation` answered by the detector service."""
-
-    _ids = itertools.count(1)
-
-    def __init__(self, info: FrameInfo, ask, client: str, template_version: int, resend_template=None):
-        self.info = info
-        self.time = info.time_s
-        self.homography = np.asarray(info.homography, float).reshape(3, 3) if len(info.homography) == 9 else None
-        self.image_size = (int(info.width), int(info.height))
-        self.ask = ask
-        self.client = client
-        self.template_version = template_version
-        self.resend_template = resend_template
-
-    def _query(self, kind: int, hyps: np.ndarray) -> ScoreReply:
-        q = ScoreQuery(request_id=next(self._ids), client=self.client, frame_index=self.info.index, kind=kind,
-                       count=len(hyps), hypotheses=pack(hyps), template_version=self.template_version)
-        rep = self.ask(q)
-        if rep is not None and rep.status == ScoreReply.NO_TEMPLATE and self.resend_template is not None:
-            self.resend_template()  # a restarted detector lost the template: give it again, retry once
-            rep = self.ask(q)
-        if rep is None:
-            raise ObservationUnavailable(f"no reply for frame {self.info.index}")
-        if rep.status != ScoreReply.OK:
-            raise ObservationUnavailable(f"detector: {ScoreReply.Status.Name(rep.status)}: {rep.error}")
-        return rep
-
-    def score_at(self, hyps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        hyps = check_hypotheses(hyps, 3)
-        rep = self._query(ScoreQuery.AT, hyps)
-        return unpack(rep.scores, np.float64, (len(hyps),)), unpack(rep.valid, np.uint8, (len(hyps),)).astype(bool)
-
-    def score_grid(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        xy = check_hypotheses(xy, 2)
-        rep = self._query(ScoreQuery.GRID, xy)
-        n = len(xy)
-        return unpack(rep.scores, np.float64, (n, rep.angles)), unpack(rep.valid, np.uint8, (n,)).astype(bool)
+    image_timeout_s: float = Field(5.0, gt=0, description="stabilising: how long a frame info waits for its "
+                                   "image (a frame whose image never comes is skipped and counted in errors)")
 
 
 def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Counters:
@@ -89,20 +54,27 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
     st = cfg.settings
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
+        # subscribed before any frame can arrive; dropped on the first frame if the source's
+        # homography makes stabilisation unnecessary ("auto")
+        images = FrameImages(session, bus.key("frame/image"), c) if st.stabilise != "off" else None
         querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
         pub_est = publisher(session, bus.key("track/estimate"))
         pub_cloud = publisher(session, bus.key("track/particles"))
         pub_status = publisher(session, bus.key("status/tracker"))
+        pub_template = publisher(session, bus.key("template"))
         token = session.liveliness().declare_token(bus.key("alive/tracker"))
         presence = Presence(session, bus)
         if not presence.wait("detector", cfg.detector_wait_s, stopper):
             log.warning("no detector on the bus after %.0f s", cfg.detector_wait_s)
+        template_bytes = b""  # the current template, re-sent to a detector that lost it
+        frame_index = 0
 
-        def ask(q: ScoreQuery, timeout: float | None = None) -> ScoreReply | None:
+        def get(q: ScoreQuery) -> ScoreReply | None:
             if "detector" not in presence:
                 return None  # detector down: no observation now, not after a timeout
-            replies = (querier.get(payload=q.SerializeToString()) if timeout is None else
-                       session.get(bus.key("detector/score"), payload=q.SerializeToString(), timeout=timeout))
+            payload = q.SerializeToString()
+            replies = (session.get(bus.key("detector/score"), payload=payload, timeout=cfg.template_timeout_s)
+                       if q.kind == ScoreQuery.TEMPLATE else querier.get(payload=payload))
             for reply in replies:
                 if reply.ok is not None:
                     try:
@@ -112,14 +84,24 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
                         log.warning("malformed reply: %s", exc)
             return None
 
-        filt = None
-        template_version = 0
-        template_bytes = b""
-        pub_template = publisher(session, bus.key("template"))
+        def ask(q: ScoreQuery) -> ScoreReply | None:
+            nonlocal template_bytes
+            rep = get(q)
+            if rep is not None and rep.status == ScoreReply.NO_TEMPLATE and template_bytes:
+                pub_template.put(template_bytes)  # a restarted detector lost the template: give it again, retry once
+                time.sleep(0.05)  # let the detector install it before the retry
+                rep = get(q)
+            if q.kind == ScoreQuery.TEMPLATE and rep is not None and rep.status == ScoreReply.OK:
+                template_bytes = rep.template.SerializeToString()
+            return rep
 
-        def resend_template() -> None:
-            pub_template.put(template_bytes)
-            time.sleep(0.05)  # let the detector install it before the retry
+        def publish_template(template: Template, version: int) -> None:
+            nonlocal template_bytes
+            template_bytes = template_to_msg(template, version, frame_index).SerializeToString()
+            pub_template.put(template_bytes, attachment=att)
+
+        detector = QueryDetector(ask, cfg.client, publish_template)
+        tracker = None
         skipped = 0
         last_status = time.monotonic()
         log.info("tracker up (%s)", st.filter)
@@ -152,22 +134,27 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
                 log.info("end of stream after %d frames", info.index)
                 break
             att = ns_attachment(info.capture_ns)
-            if filt is None:
-                x, y, w, h = cfg.init_box
-                tq = ScoreQuery(request_id=0, client=cfg.client, frame_index=info.index, kind=ScoreQuery.TEMPLATE,
-                                count=1, hypotheses=pack(np.array([[x + w / 2, y + h / 2, x, y, w, h]])))
-                rep = ask(tq, timeout=cfg.template_timeout_s)
-                if rep is None or rep.status != ScoreReply.OK:
+            frame_index = int(info.index)
+            if tracker is None and images is not None and not stabilises(st, info_homography(info)):
+                images.close()
+                images = None
+            image = None
+            if images is not None:
+                image = images.get(info.index, cfg.image_timeout_s, stopper)
+                if image is None:
                     c.add("errors")
-                    log.error("no template from the detector for frame %d: %s", info.index,
-                              "no reply" if rep is None else rep.error)
+                    log.error("no image for frame %d after %.1f s: frame skipped", info.index, cfg.image_timeout_s)
                     continue
-                template_version = rep.template.version
-                template_bytes = rep.template.SerializeToString()
-                H = np.asarray(info.homography, float).reshape(3, 3) if len(info.homography) == 9 else None
-                filt = make_filter(st, cfg.init_box, H, info.time_s)
+            frame = info_frame(info, image)
             t0 = time.perf_counter()
-            state = filt.step(info.time_s, RemoteObservation(info, ask, cfg.client, template_version, resend_template))
+            if tracker is None:
+                try:
+                    tracker = Tracker.start(frame, cfg.init_box, st, detector)
+                except (ObservationUnavailable, InitError, ValueError) as exc:
+                    c.add("errors")
+                    log.error("cannot start on frame %d: %s", info.index, exc)
+                    continue
+            state = tracker.step(frame)
             step_ms = 1e3 * (time.perf_counter() - t0)
             est = estimate_msg(info.index, info.capture_ns, state, st.filter, skipped, step_ms)
             pub_est.put(est.SerializeToString(), attachment=att)
@@ -178,6 +165,8 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
                 pub_status.put(c.status().SerializeToString())
                 last_status = time.monotonic()
         pub_status.put(c.status(final=True).SerializeToString())
+        if images is not None:
+            images.close()
         presence.close()
         token.undeclare()
         sub.undeclare()

@@ -116,4 +116,4 @@ def test_adaptation_off_is_the_plain_pipeline():
     for f in frames:
         tracker_on.step(f)
     assert tracker_on.adaptations > 0
-    assert not np.array_equal(tracker_on.matcher.template.pmatrix, tracker.matcher.template.pmatrix)
+    assert not np.array_equal(tracker_on.template.pmatrix, tracker.template.pmatrix)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from common.detector import FrameCache, PolarMatcher, Template
+from common.detector.client import one_off_grid
 from common.detector.observation import DetectorObservation
 from common.detector.resample import ResampledObservation, quantise_factor, sample_template_pmatrix
 from common.scale import ScaleTracker, upsample_factor
@@ -107,13 +108,16 @@ def test_scale_search_follows_a_growing_target():
         class map_estimate:
             image_x, image_y = centre
 
+    def grid_at(k, xy):
+        return one_off_grid(0.0, img2, matcher, k, xy)
+
     for i in range(1, 8):
-        st.maybe_search(0.1 * i, img2, matcher, State)
+        st.maybe_search(0.1 * i, grid_at, State)
     assert st.s == pytest.approx(1.5, rel=0.06), st.s
     # not when the target is not seen well
     st2 = ScaleTracker(cfg, box, False, None, np.array(centre), 0.0)
     State.score = 0.2
-    assert not st2.maybe_search(0.5, img2, matcher, State) and st2.s == 1.0
+    assert not st2.maybe_search(0.5, grid_at, State) and st2.s == 1.0
 
 
 def test_scale_from_a_metric_homography():

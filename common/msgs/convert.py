@@ -1,12 +1,16 @@
-"""TrackState -> Estimate / ParticleCloud messages (no bus code)."""
+"""Messages <-> the library's objects (no bus code): estimates, particle clouds, templates, frames."""
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from common.msgs import Estimate, ParticleCloud, pack
+from common.detector.layout import N_COLUMNS, N_ROWS
+from common.detector.template import Template
+from common.msgs import Estimate, FrameInfo, ParticleCloud, pack, unpack
+from common.msgs import Template as TemplateMsg
 
 
 def estimate_msg(frame_index: int, capture_ns: int, state, filter_name: str, skipped: int = 0,
@@ -27,3 +31,42 @@ def particles_msg(frame_index: int, state) -> ParticleCloud | None:
     pv = state.particle_visibility if state.particle_visibility is not None else np.full(n, state.p_visible)
     return ParticleCloud(frame_index=frame_index, time_s=state.time, count=n, particles=pack(state.particles),
                          image_xy=pack(state.particles_image), weights=pack(state.weights), p_visible=pack(pv))
+
+
+def template_to_msg(t: Template, version: int, frame_index: int) -> TemplateMsg:
+    return TemplateMsg(version=version, rows=t.pmatrix.shape[0], columns=t.pmatrix.shape[1],
+                       pmatrix=np.ascontiguousarray(t.pmatrix, np.complex64).tobytes(), centre_x=t.centre[0],
+                       centre_y=t.centre[1], box=list(t.box or ()), frame_index=frame_index)
+
+
+def pmatrix_from_bytes(data: bytes, rows: int, columns: int) -> np.ndarray:
+    """A (12, 34 C) complex64 P-matrix from its bytes; ValueError for any other shape or size."""
+    if rows != N_ROWS or columns % N_COLUMNS or columns == 0:
+        raise ValueError(f"P-matrix {rows}x{columns}, expected 12 x 34C")
+    return unpack(data, np.complex64, (rows, columns))
+
+
+def msg_to_template(m: TemplateMsg) -> Template:
+    pm = pmatrix_from_bytes(m.pmatrix, m.rows, m.columns)
+    return Template(pmatrix=pm, centre=(m.centre_x, m.centre_y), box=tuple(m.box) if len(m.box) == 4 else None)
+
+
+def info_homography(info: FrameInfo) -> np.ndarray | None:
+    return np.asarray(info.homography, float).reshape(3, 3) if len(info.homography) == 9 else None
+
+
+@dataclass(frozen=True)
+class InfoFrame:
+    """A frame as the bus describes it (a FrameInfo), with its pixels only where they were taken
+    (a stabilising tracker): what :class:`common.runner.Tracker` steps on outside the process
+    that reads the source."""
+
+    index: int
+    time: float
+    size: tuple[int, int]
+    homography: np.ndarray | None = None
+    image: np.ndarray | None = field(default=None, repr=False)
+
+
+def info_frame(info: FrameInfo, image: np.ndarray | None = None) -> InfoFrame:
+    return InfoFrame(int(info.index), info.time_s, (int(info.width), int(info.height)), info_homography(info), image)

@@ -54,15 +54,17 @@ class FrameInfo(_message.Message):
     def __init__(self, index: _Optional[int] = ..., time_s: _Optional[float] = ..., capture_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., homography: _Optional[_Iterable[float]] = ..., truth: _Optional[_Union[Truth, _Mapping]] = ..., source: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., total_frames: _Optional[int] = ...) -> None: ...
 
 class ScoreQuery(_message.Message):
-    __slots__ = ("request_id", "client", "frame_index", "kind", "count", "hypotheses", "template_version")
+    __slots__ = ("request_id", "client", "frame_index", "kind", "count", "hypotheses", "template_version", "factor", "one_off")
     class Kind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         AT: _ClassVar[ScoreQuery.Kind]
         GRID: _ClassVar[ScoreQuery.Kind]
         TEMPLATE: _ClassVar[ScoreQuery.Kind]
+        PEAK: _ClassVar[ScoreQuery.Kind]
     AT: ScoreQuery.Kind
     GRID: ScoreQuery.Kind
     TEMPLATE: ScoreQuery.Kind
+    PEAK: ScoreQuery.Kind
     REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
     CLIENT_FIELD_NUMBER: _ClassVar[int]
     FRAME_INDEX_FIELD_NUMBER: _ClassVar[int]
@@ -70,6 +72,8 @@ class ScoreQuery(_message.Message):
     COUNT_FIELD_NUMBER: _ClassVar[int]
     HYPOTHESES_FIELD_NUMBER: _ClassVar[int]
     TEMPLATE_VERSION_FIELD_NUMBER: _ClassVar[int]
+    FACTOR_FIELD_NUMBER: _ClassVar[int]
+    ONE_OFF_FIELD_NUMBER: _ClassVar[int]
     request_id: int
     client: str
     frame_index: int
@@ -77,10 +81,12 @@ class ScoreQuery(_message.Message):
     count: int
     hypotheses: bytes
     template_version: int
-    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., kind: _Optional[_Union[ScoreQuery.Kind, str]] = ..., count: _Optional[int] = ..., hypotheses: _Optional[bytes] = ..., template_version: _Optional[int] = ...) -> None: ...
+    factor: float
+    one_off: bool
+    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., kind: _Optional[_Union[ScoreQuery.Kind, str]] = ..., count: _Optional[int] = ..., hypotheses: _Optional[bytes] = ..., template_version: _Optional[int] = ..., factor: _Optional[float] = ..., one_off: _Optional[bool] = ...) -> None: ...
 
 class ScoreReply(_message.Message):
-    __slots__ = ("request_id", "client", "frame_index", "status", "error", "count", "angles", "scores", "valid", "template", "prepare_ms", "score_ms")
+    __slots__ = ("request_id", "client", "frame_index", "status", "error", "count", "angles", "scores", "valid", "template", "prepare_ms", "score_ms", "pmatrix", "pmatrix_columns")
     class Status(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         OK: _ClassVar[ScoreReply.Status]
@@ -105,6 +111,8 @@ class ScoreReply(_message.Message):
     TEMPLATE_FIELD_NUMBER: _ClassVar[int]
     PREPARE_MS_FIELD_NUMBER: _ClassVar[int]
     SCORE_MS_FIELD_NUMBER: _ClassVar[int]
+    PMATRIX_FIELD_NUMBER: _ClassVar[int]
+    PMATRIX_COLUMNS_FIELD_NUMBER: _ClassVar[int]
     request_id: int
     client: str
     frame_index: int
@@ -117,7 +125,9 @@ class ScoreReply(_message.Message):
     template: Template
     prepare_ms: float
     score_ms: float
-    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., status: _Optional[_Union[ScoreReply.Status, str]] = ..., error: _Optional[str] = ..., count: _Optional[int] = ..., angles: _Optional[int] = ..., scores: _Optional[bytes] = ..., valid: _Optional[bytes] = ..., template: _Optional[_Union[Template, _Mapping]] = ..., prepare_ms: _Optional[float] = ..., score_ms: _Optional[float] = ...) -> None: ...
+    pmatrix: bytes
+    pmatrix_columns: int
+    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., status: _Optional[_Union[ScoreReply.Status, str]] = ..., error: _Optional[str] = ..., count: _Optional[int] = ..., angles: _Optional[int] = ..., scores: _Optional[bytes] = ..., valid: _Optional[bytes] = ..., template: _Optional[_Union[Template, _Mapping]] = ..., prepare_ms: _Optional[float] = ..., score_ms: _Optional[float] = ..., pmatrix: _Optional[bytes] = ..., pmatrix_columns: _Optional[int] = ...) -> None: ...
 
 class Template(_message.Message):
     __slots__ = ("version", "rows", "columns", "pmatrix", "centre_x", "centre_y", "box", "frame_index")

@@ -1,0 +1,86 @@
+"""The Tracker's detector client: everything of a tracking step that needs pixels and the template.
+
+:class:`common.runner.Tracker` keeps the bookkeeping (filter, stabiliser, scale, adaptation) and
+asks a client for the matching:
+
+- ``build_template(frame, centre, box, k)``: the template on the first frame, at factor ``k``;
+- ``use_template(template)``: match with an adapted template from now on;
+- ``observation(frame, homography, k)``: the frame's observation at factor ``k`` (what the filter
+  queries, then the template adaptation's ``refine_peak`` / ``pmatrix_at`` at the estimate);
+- ``scale_grid(frame, k, xy)``: the scale search's scores, each on a fresh resampled crop.
+
+:class:`LocalDetector` does it in-process. Over the bus and on offline replay the same
+operations travel as queries (:mod:`common.detector_queries`), and the detector service answers
+them with the functions below, called in the same order on the same pixels, so the numbers are
+bit-identical.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from common.detector.frame import FrameCache
+from common.detector.matcher import PolarMatcher
+from common.detector.observation import DetectorObservation
+from common.detector.resample import ResampledObservation, sample_template_pmatrix
+from common.detector.template import Template
+
+
+def make_template(image: np.ndarray, centre: tuple[float, float], box: tuple[float, float, float, float],
+                  k: float) -> Template:
+    """The template at ``centre`` of ``image`` matched at resampling factor ``k``."""
+    if k == 1.0:
+        return Template.from_image(image, centre, box=box)
+    return Template(pmatrix=sample_template_pmatrix(image, centre, k), centre=centre,
+                    box=tuple(float(v) for v in box))
+
+
+def frame_observation(key: object, time: float, image: np.ndarray, matcher: PolarMatcher, cache: FrameCache,
+                      k: float, homography: np.ndarray | None = None):
+    """A frame's observation at factor ``k``: the plain full-resolution path (regions kept in
+    ``cache`` under ``key``) when ``k`` is 1, else a resampled one (its crop kept by the object)."""
+    if k == 1.0:
+        return DetectorObservation(key, time, image, matcher, cache, homography)
+    return ResampledObservation(key, time, image, matcher, k, homography)
+
+
+def one_off_grid(time: float, image: np.ndarray, matcher: PolarMatcher, k: float,
+                 xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """48-angle scores at ``xy`` on a crop of ``image`` resampled by ``k``, prepared for this call
+    alone (the scale search's measurement: unaffected by the frame's other queries)."""
+    return ResampledObservation(None, time, image, matcher, k).score_grid(xy)
+
+
+class DetectorClient(Protocol):
+    def build_template(self, frame, centre: tuple[float, float], box: tuple[float, float, float, float],
+                       k: float) -> Template: ...
+
+    def use_template(self, template: Template) -> None: ...
+
+    def observation(self, frame, homography: np.ndarray | None, k: float): ...
+
+    def scale_grid(self, frame, k: float, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class LocalDetector:
+    """:class:`DetectorClient` in-process: the frames' pixels, the current matcher, a frame cache."""
+
+    def __init__(self):
+        self.cache = FrameCache()
+        self.matcher: PolarMatcher | None = None
+
+    def build_template(self, frame, centre, box, k: float) -> Template:
+        template = make_template(frame.image, centre, box, k)
+        self.use_template(template)
+        return template
+
+    def use_template(self, template: Template) -> None:
+        self.matcher = PolarMatcher(template)  # prepared frames stay valid
+
+    def observation(self, frame, homography, k: float):
+        return frame_observation(frame.index, frame.time, frame.image, self.matcher, self.cache, k, homography)
+
+    def scale_grid(self, frame, k: float, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return one_off_grid(frame.time, frame.image, self.matcher, k, xy)

@@ -1,0 +1,60 @@
+"""Frame images off the bus: decoding a ``frame/image`` sample, and a stabilising tracker's store
+of the latest frames' pixels by index (the Zenoh callback only queues; decoding happens in the
+service's thread)."""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+
+import numpy as np
+
+from common.msgs import RawImage, msg_to_image
+from services.bus import Inbox, attachment_ns, payload_bytes
+
+
+def decode_image(sample) -> tuple[int, np.ndarray, int]:
+    """(frame index, uint8 RGB image, capture ns) of a ``frame/image`` sample; ValueError (or a
+    protobuf DecodeError) when malformed."""
+    msg = RawImage.FromString(payload_bytes(sample))
+    index = int(msg.frame_id)
+    return index, msg_to_image(msg), attachment_ns(sample) or msg.timestamp.ToNanoseconds()
+
+
+class FrameImages:
+    """Subscribes to ``frame/image`` and hands out a frame's image by index (the last ``keep`` kept)."""
+
+    def __init__(self, session, key: str, counters, keep: int = 8):
+        self.inbox = Inbox()
+        self.sub = session.declare_subscriber(key, self.inbox.callback("image", maxlen=keep))
+        self.counters = counters
+        self.keep = keep
+        self.images: OrderedDict[int, np.ndarray] = OrderedDict()
+
+    def _drain(self) -> None:
+        while (s := self.inbox.pop("image")) is not None:
+            try:
+                index, image, _ = decode_image(s)
+            except Exception:  # noqa: BLE001
+                self.counters.add("malformed")
+                continue
+            self.images[index] = image
+            while len(self.images) > self.keep:
+                self.images.popitem(last=False)
+
+    def get(self, index: int, timeout: float, stopper=None) -> np.ndarray | None:
+        """Frame ``index``'s image, waiting up to ``timeout`` s for it (None if it never came).
+        Older frames are forgotten: frames are asked for in order."""
+        deadline = time.monotonic() + timeout
+        while True:
+            self._drain()
+            if index in self.images:
+                for old in [i for i in self.images if i < index]:
+                    del self.images[old]
+                return self.images.pop(index)
+            if time.monotonic() >= deadline or (stopper is not None and stopper.stopped):
+                return None
+            self.inbox.wait(min(0.05, max(0.0, deadline - time.monotonic())))
+
+    def close(self) -> None:
+        self.sub.undeclare()
