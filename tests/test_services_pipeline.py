@@ -19,6 +19,7 @@ from common.recording import offline_retrack, read_recording
 from common.runner import track_frames
 from common.settings import profile_for
 from common.sources import open_source
+from parity import rewrite_mcap
 from services.bus import wait_for_alive
 from services.launcher import Pipeline, router_config
 
@@ -104,33 +105,16 @@ def test_retrack_with_live_detector_is_bit_identical(recorded_run):
 
 def test_replay_detects_a_changed_estimate(recorded_run, tmp_path):
     """Negative control: tamper with one recorded estimate; the replay must say so."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
+    def edit(topic, data):
+        if topic == "track/estimate":
+            e = Estimate.FromString(data)
+            if e.frame_index == 5:
+                e.x = np.nextafter(e.x, np.inf)  # one ulp
+                return e.SerializeToString()
+        return data
 
-    src_path = recorded_run["result"].mcap
     dst = tmp_path / "tampered.mcap"
-    with open(src_path, "rb") as fh, open(dst, "wb") as out:
-        reader = make_reader(fh)
-        w = Writer(out)
-        w.start()
-        schemas, channels = {}, {}
-        for m in reader.iter_metadata():
-            w.add_metadata(m.name, dict(m.metadata))
-        for schema, ch, msg in reader.iter_messages(log_time_order=False):
-            sid = 0
-            if schema is not None:
-                sid = schemas.get(schema.id) or schemas.setdefault(
-                    schema.id, w.register_schema(schema.name, schema.encoding, schema.data))
-            cid = channels.get(ch.id) or channels.setdefault(
-                ch.id, w.register_channel(ch.topic, ch.message_encoding, sid))
-            data = msg.data
-            if ch.topic == "track/estimate":
-                e = Estimate.FromString(data)
-                if e.frame_index == 5:
-                    e.x = np.nextafter(e.x, np.inf)  # one ulp
-                    data = e.SerializeToString()
-            w.add_message(cid, msg.log_time, data, msg.publish_time, msg.sequence)
-        w.finish()
+    rewrite_mcap(recorded_run["result"].mcap, dst, edit)
     out = offline_retrack(str(dst))
     assert not out["identical"] and out["mismatched"] == [5]
 
