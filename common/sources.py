@@ -143,7 +143,9 @@ def read_groundtruth(path: Path) -> list[tuple[float, float, float, float] | Non
 class FolderSource(Source):
     """A folder of frames (``img/`` sub-folder or the folder itself), optional ground truth."""
 
-    def __init__(self, folder: Path, fps: float = 30.0, one_based_truth: bool | None = None):
+    def __init__(self, folder: Path, fps: float = 30.0, one_based_truth: bool | None = None,
+                 n_frames: int | None = None):
+        """``n_frames`` keeps only the first frames."""
         folder = Path(folder)
         img_dir = folder / "img" if (folder / "img").is_dir() else folder
         self.files = sorted(p for p in img_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
@@ -163,6 +165,9 @@ class FolderSource(Source):
             # UAV123 comes from MATLAB and counts from 1 (see shared/data/README.md).
             shift = 1.0 if (one_based_truth if one_based_truth is not None else folder.name.startswith("uav123")) else 0.0
             self.truth = [None if b is None else (b[0] - shift, b[1] - shift, b[2], b[3]) for b in boxes]
+        if n_frames is not None:
+            self.files = self.files[:max(0, int(n_frames))]
+            self.truth = None if self.truth is None else self.truth[:len(self.files)]
 
     def __len__(self) -> int:
         return len(self.files)
@@ -189,7 +194,8 @@ class FolderSource(Source):
 
 
 class VideoSource(Source):
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, n_frames: int | None = None):
+        """``n_frames`` keeps only the first frames."""
         path = Path(path)
         if not path.exists():
             raise SourceError(f"{path}: no such file")
@@ -202,12 +208,13 @@ class VideoSource(Source):
         self.name = path.stem
         fps = cv2.VideoCapture(str(path)).get(cv2.CAP_PROP_FPS)
         self.fps = float(fps) if fps and fps > 0 else 30.0
+        self.limit = None if n_frames is None else max(0, int(n_frames))
 
     def __iter__(self) -> Iterator[Frame]:
         cap = cv2.VideoCapture(str(self.path))
         i = 0
         try:
-            while True:
+            while self.limit is None or i < self.limit:
                 ok, bgr = cap.read()
                 if not ok:
                     break
@@ -220,7 +227,7 @@ class VideoSource(Source):
         cap = cv2.VideoCapture(str(self.path))
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         cap.release()
-        return n
+        return n if self.limit is None else min(n, self.limit)
 
 
 class CameraSource(Source):
@@ -277,9 +284,9 @@ def open_source(spec: str, n_frames: int | None = None) -> Source:
             raise SourceError(f"bad camera {spec!r}: use camera:N with N the device number") from None
     path = Path(spec)
     if path.is_dir():
-        return FolderSource(path)
+        return FolderSource(path, n_frames=n_frames)
     if path.exists():
-        return VideoSource(path)
+        return VideoSource(path, n_frames=n_frames)
     raise SourceError(
         f"{spec}: no such file or folder (SOURCE is a video file, a UAV123-format folder, "
         f"camera:N, or synthetic[:SEED])"

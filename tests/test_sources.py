@@ -34,6 +34,13 @@ def test_folder_source_reads_frames_and_truth(tmp_path):
     assert r > 200 and g < 60 and b < 60  # RGB order
 
 
+def test_frames_limit_applies_to_folders(tmp_path):
+    """``--frames N`` (open_source's n_frames) keeps the first N frames of a folder too."""
+    d = _make_folder(tmp_path, lines=["5,6,10,8", "NaN,NaN,NaN,NaN", "7\t8\t10\t8"])
+    src = open_source(str(d), n_frames=2)
+    assert len(src) == 2 and [f.index for f in src] == [0, 1] and src.frame(1).truth.box is None
+
+
 def test_uav123_boxes_count_from_one(tmp_path):
     d = _make_folder(tmp_path, name="uav123-test", lines=["5,6,10,8"] * 3)
     assert open_source(str(d)).frame(0).truth.box == (4.0, 5.0, 10.0, 8.0)
@@ -82,6 +89,8 @@ def test_video_source_round_trip(tmp_path):
     frames = list(src)
     assert len(frames) == 5 and frames[3].time == pytest.approx(3 / 25)
     assert abs(int(frames[3].image.mean()) - 120) <= 3
+    short = open_source(str(p), n_frames=3)
+    assert len(short) == 3 and len(list(short)) == 3
 
 
 def test_synthetic_specs():

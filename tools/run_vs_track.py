@@ -1,0 +1,56 @@
+"""Compare a recording of ``polartrack run`` with ``polartrack track`` on the same frames.
+
+Re-tracks the recorded source in-process (``common.runner.track_frames``, the code behind
+``polartrack track``) with the recorded initial box and settings, over the frames the recording
+has estimates for, and compares every estimate field by field, bit for bit
+(``common.recording.compare_estimates``). Optionally also checks a ``polartrack track`` CSV
+against the recorded estimates at the CSV's precision.
+
+Run: ``uv run python tools/run_vs_track.py RECORDING.mcap [--csv TRACK.csv]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> int:
+    from common.msgs.convert import estimate_msg
+    from common.recording import compare_estimates, read_recording
+    from common.runner import track_frames
+    from common.settings import TrackerSettings
+    from common.sources import open_source
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("mcap")
+    p.add_argument("--csv", help="a polartrack track CSV of the same source to check too")
+    args = p.parse_args(argv)
+    rec = read_recording(args.mcap)
+    run = rec.run
+    settings = TrackerSettings.model_validate_json(run["settings_json"])
+    recorded = sorted(rec.decoded("track/estimate"), key=lambda e: e.frame_index)
+    n = recorded[-1].frame_index + 1
+    new = [estimate_msg(f.index, 0, s, settings.filter)
+           for f, s in track_frames(open_source(run["source"], n_frames=n), tuple(json.loads(run["init_box"])), settings)
+           if f.index <= recorded[-1].frame_index]
+    out = compare_estimates(recorded, new)
+    if args.csv:
+        with open(args.csv) as fh:
+            rows = {int(r["frame"]): r for r in csv.DictReader(fh)}
+        diffs = [max(abs(float(rows[e.frame_index][k]) - v) for k, v in (("x", e.x), ("y", e.y),
+                 ("theta_deg", e.theta_deg), ("p_visible", e.p_visible)))
+                 for e in recorded if e.frame_index in rows]
+        out["csv_rows_compared"] = len(diffs)
+        out["csv_max_abs_diff"] = float(max(diffs)) if diffs else None
+        out["csv_within_rounding"] = bool(diffs) and all(d <= 5e-4 + 1e-9 for d in diffs)
+    print(json.dumps(out))
+    return 0 if out["identical"] and out.get("csv_within_rounding", True) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
