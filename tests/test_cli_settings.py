@@ -1,4 +1,4 @@
-"""--set KEY=VALUE overrides of the tracker settings on track / eval."""
+"""--set KEY=VALUE overrides of the tracker settings on track / eval / run."""
 
 import argparse
 
@@ -31,3 +31,9 @@ def test_bad_overrides_are_one_line_errors(capsys, item, message):
     assert main(["track", "synthetic:1", "--frames", "2", "--set", item, "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
+
+
+def test_run_takes_the_same_overrides(capsys):
+    """run validates --set as track does (before starting any process)."""
+    assert main(["run", "--source", "synthetic:1", "--frames", "2", "--set", "scale.mode=sideways"]) == 2
+    assert "scale.mode: Input should be" in capsys.readouterr().err

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from common.commands.common_args import box_arg
+from common.commands.common_args import apply_overrides, box_arg
 
 HELP = "run the multi-process pipeline (ingest, detector, tracker, recorder, viewer)"
 
@@ -25,6 +25,8 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
         p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="tracking filter")
         p.add_argument("--particles", type=int, metavar="N", help="particles (rbpf, sir)")
         p.add_argument("--seed", type=int, default=0, help="seed of the filter's generator")
+        p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                       help="override a tracker setting by its dotted name (repeatable), as on track")
     p.add_argument("--frames", type=int, metavar="N", help="only the first N frames")
     p.add_argument("--pace", choices=["consumer", "realtime", "max"], default="consumer",
                    help="consumer: paced by the tracker, nothing dropped (default); realtime: source rate")
@@ -57,6 +59,8 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
     if particles is not None and particles < 1:
         raise UsageError("--particles must be at least 1")
     settings = profile_for(source, filter=filter_name, seed=seed, particles=particles)
+    if getattr(args, "overrides", None):
+        settings = apply_overrides(settings, args.overrides)
     with Pipeline(source_spec, init, settings, out_dir=args.out_dir, frames=args.frames, pace=args.pace,
                   viewer=not args.no_viewer) as pipe:
         try:
