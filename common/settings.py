@@ -129,6 +129,14 @@ SYNTHETIC_BETA = {"a1": 5.69, "b1": 2.81, "a0": 0.25, "b0": 8.08}
 Beta(0.25, 8.08). Pang's Beta(5, 7) / Beta(1, 7) were fitted to their own detector and video."""
 
 
+RECOVERY_PROPOSAL = {"candidates": 2, "jump_candidates": 1, "jump_probability": 0.01, "jump_std": 2.0}
+"""RBPF settings beyond Pang for occlusion recovery (``polartrack study``'s ``rbpf+jumps`` row; all
+off by default): a jump component in the motion model for visible targets (probability 0.01 a
+step, 2 m per axis), explored by one of two candidates per particle. Measured on the synthetic
+scene: the failing seeds of Pang's filter lock onto a secondary peak half a car length ahead of a
+car emerging from the smoke, which the plain NCV cannot leave (see the README's results)."""
+
+
 CAR_LENGTH_M = 4.5
 """A typical car's length: converts the physical bounds below into target lengths."""
 CAR_MAX_ACCEL_MPS2 = 0.8 * 9.81

@@ -99,6 +99,38 @@ class NearConstantVelocity(_Component):
         return states @ self.transition_matrix(dt).T + noise @ self.covariance_cholesky(dt).T
 
 
+def jump_mixture_log_weights(residual: np.ndarray, q: np.ndarray, jump_std: float, eps: np.ndarray | float,
+                             share: float) -> np.ndarray:
+    """log p(x' | x) / q(x' | x) for candidates drawn from a two-component proposal.
+
+    The model: x' = F x + w (+ j with probability ``eps``), w ~ N(0, Q), j ~ N(0, jump_std^2) on
+    the two position components; so p = (1 - eps) N(r; 0, Q) + eps N(r; 0, Q + J) with r = x' - F x
+    (``residual``, (M, 4); ``eps`` scalar or per candidate). A fraction ``share`` of the candidates
+    was drawn from N(0, Q + J), the rest from N(0, Q); every candidate is weighted against the
+    mixture of the two, q = (1 - share) N(r; 0, Q) + share N(r; 0, Q + J) (deterministic-mixture
+    multiple importance sampling: unbiased, and unlike weighting each candidate against its own
+    component, of bounded variance where the jump component is far wider than the NCV one).
+    """
+    r = np.asarray(residual, float)
+    big = q.copy()
+    big[0, 0] += jump_std**2
+    big[2, 2] += jump_std**2
+
+    def logpdf(cov):
+        sign, logdet = np.linalg.slogdet(cov)
+        if sign <= 0:
+            raise ValueError("motion covariance is not positive definite (dt = 0?)")
+        sol = np.linalg.solve(cov, r.T).T
+        return -0.5 * (np.einsum("ij,ij->i", r, sol) + logdet + 4 * np.log(2 * np.pi))
+
+    l_small, l_big = logpdf(q), logpdf(big)
+    eps = np.broadcast_to(np.asarray(eps, float), l_small.shape)
+    with np.errstate(divide="ignore"):
+        log_p = np.logaddexp(np.log1p(-eps) + l_small, np.log(eps) + l_big)
+    log_q = np.logaddexp(np.log1p(-share) + l_small, np.log(share) + l_big) if share < 1 else l_big
+    return log_p - log_q
+
+
 class OrientationRandomWalk(_Component):
     """theta_t | theta_{t-1} ~ N(theta_{t-1}, var), theta in degrees, result wrapped to [-180, 180).
 

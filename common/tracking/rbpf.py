@@ -26,13 +26,16 @@ from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.special import logsumexp
 
 from . import resampling
 from ._frames import FrameClock, make_rng
 from .camera import world_to_image
 from .likelihood import BetaRatioLikelihood, LikelihoodModel
-from .motion import NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain
-from .observation import FrameObservation, ObservationUnavailable, inside_image_log_prior, sanitise_scores
+from .motion import (NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain, jump_mixture_log_weights,
+                     wrap_degrees)
+from .observation import N_ANGLES, FrameObservation, ObservationUnavailable, inside_image_log_prior, sanitise_scores
+from .orientation_proposal import sample_orientation
 from .state import InitialState, TrackState, summarise_particles
 
 
@@ -72,13 +75,35 @@ class RBPFConfig(BaseModel):
     )
     jump_probability: float = Field(
         0.0, ge=0.0, le=1.0,
-        description="Not in the paper: per step, a particle believed visible (probability pi_p(V=1)) jumps "
-        "with probability jump_probability * pi_p(1) by N(0, jump_std^2) in position. A heavy-tailed motion "
-        "model that lets a cloud locked on a secondary peak of the score surface (e.g. a half-visible car "
-        "emerging from smoke) find the true one; occluded particles do not jump, so the cloud does not "
-        "spread faster during an occlusion. 0 (default) is Pang's model.",
+        description="Not in the paper: the motion model's jump component. Per step, a target that was visible "
+        "(weighted by the particle's pi_p(V=1)) moves with this probability by an extra N(0, jump_std^2) per axis: "
+        "a heavy-tailed NCV that lets the cloud leave a secondary peak of the score surface it locked onto (e.g. "
+        "the front half of a car emerging from smoke, matched half a car length ahead). Occluded particles do not "
+        "jump: a hidden target's cloud is not drawn to look-alike clutter. 0 (default) is Pang's model.",
     )
-    jump_std: float = Field(2.0, gt=0.0, description="Std of a jump, world units (m, or px without homography).")
+    jump_std: float = Field(2.0, gt=0.0, description="Std of a jump per axis, world units (m, or px without homography).")
+    jump_candidates: int = Field(
+        0, ge=0,
+        description="How many of each particle's K candidates are drawn from the jump component (the rest from the "
+        "plain NCV), every candidate weighted by prior / proposal density: jumps are explored at K_j/K per "
+        "candidate however rare the model says they are. 0: jumps are sampled from the prior itself.",
+    )
+    candidates: int = Field(
+        1, ge=1,
+        description="Not in the paper: K > 1 makes each particle propose K candidates from its transition "
+        "(all N*K scored in the one batched query) and keep one, chosen in proportion to its weight, the particle "
+        "taking the sum of its candidates' weights (an exact importance sampler: N*K particles followed by "
+        "resampling within each particle's group). The filter still carries N particles; the scored "
+        "hypotheses per frame are N*K. 1 (default) is Pang's filter.",
+    )
+    orientation_proposal: Literal["prior", "grid"] = Field(
+        "prior",
+        description="'prior' (Pang): theta_t drawn from the random walk, each particle scored at that angle "
+        "(one score_at query). 'grid' (ours): one score_grid query (48 angles per particle, the same cost) gives "
+        "each particle's exact score curve; theta is integrated out on the random walk's nodes and sampled from "
+        "its posterior (common.tracking.orientation_proposal), so a particle in the right place is not judged "
+        "by an orientation a few degrees off.",
+    )
 
 
 class RaoBlackwellisedParticleFilter:
@@ -149,6 +174,44 @@ class RaoBlackwellisedParticleFilter:
         self.log_w = resampling.normalise_log_weights(lw)
         self.clock = FrameClock(t0)
         self._resample = resampling.get_scheme(self.config.resampling)
+        self._n = n
+
+    def _jump(self, parents: np.ndarray, dt: float) -> None:
+        """Add the jump component to the sampled positions and weight each candidate by
+        p(x' | x) / q(x' | x) (:func:`common.tracking.motion.jump_mixture_log_weights`).
+        Draws M uniforms (prior sampling) or nothing, then 2M normals."""
+        cfg = self.config
+        m = self.n_particles
+        eps = cfg.jump_probability * np.exp(self.log_pv[:, 1])  # pi_{t-1,p}(1): only visible targets jump
+        if cfg.jump_candidates == 0:
+            jumped = self.rng.uniform(size=m) < eps
+        else:
+            k = m // self._n
+            jumped = np.tile(np.arange(k) >= k - min(cfg.jump_candidates, k), self._n)
+        offsets = self.rng.normal(0.0, cfg.jump_std, size=(m, 2))
+        self.particles[jumped, 0] += offsets[jumped, 0]
+        self.particles[jumped, 2] += offsets[jumped, 1]
+        if cfg.jump_candidates > 0:
+            residual = self.particles[:, :4] - cfg.motion.predict_mean(parents, dt)
+            self.log_w = self.log_w + jump_mixture_log_weights(residual, cfg.motion.covariance(dt), cfg.jump_std, eps, float(jumped.mean()))
+            self.log_w = resampling.normalise_log_weights(self.log_w)
+
+    def _keep_one_per_group(self) -> np.ndarray:
+        """Collapse the N groups of K candidates: keep one per group, drawn in proportion to the
+        candidates' weights, with the group's total weight. N uniforms. Returns the kept rows."""
+        k = self.n_particles // self._n
+        lw = self.log_w.reshape(self._n, k)
+        group = logsumexp(lw, axis=1)
+        finite = np.isfinite(group)
+        p = np.exp(lw - np.where(finite, group, 0.0)[:, None])
+        p[~finite] = 1.0 / k
+        cdf = np.cumsum(p, axis=1)
+        pick = np.minimum((cdf < self.rng.uniform(size=self._n)[:, None] * cdf[:, -1:]).sum(axis=1), k - 1)
+        keep = np.arange(self._n) * k + pick
+        self.particles = self.particles[keep]
+        self.log_pv = self.log_pv[keep]
+        self.log_w = group
+        return keep
 
     @property
     def n_particles(self) -> int:
@@ -166,23 +229,30 @@ class RaoBlackwellisedParticleFilter:
     def predict(self, dt: float) -> None:
         """Propagate every particle through p(S^N_t | S^N_{t-1}) and pi through the Markov chain.
 
-        Draw order (fixed, for reproducibility): 4N normals (X), N normals (theta), and with
-        ``jump_probability > 0`` N uniforms and 2N normals (jumps).
+        Draw order (fixed, for reproducibility): 4M normals (X), M normals (theta; not with the
+        'grid' orientation proposal, which draws theta in the update), and with
+        ``jump_probability > 0`` M uniforms (unless jump candidates are used) and 2M normals
+        (jumps); M = N * candidates (kept in groups of K until :meth:`_keep_one_per_group`).
         """
         cfg = self.config
-        self.particles[:, :4] = cfg.motion.sample(self.particles[:, :4], dt, self.rng)
-        self.particles[:, 4] = cfg.orientation.sample(self.particles[:, 4], dt, self.rng)
+        if cfg.candidates > 1:  # N groups of K candidates, each with weight w_p / K
+            k = cfg.candidates
+            self.particles = np.repeat(self.particles, k, axis=0)
+            self.log_pv = np.repeat(self.log_pv, k, axis=0)
+            self.log_w = np.repeat(self.log_w, k) - np.log(k)
+        parents = self.particles[:, :4].copy()
+        self.particles[:, :4] = cfg.motion.sample(parents, dt, self.rng)
+        if cfg.orientation_proposal == "prior":
+            self.particles[:, 4] = cfg.orientation.sample(self.particles[:, 4], dt, self.rng)
+        self._theta_sigma = float(np.sqrt(cfg.orientation.variance(dt)))
         if cfg.jump_probability > 0:
-            n = self.n_particles
-            jump = self.rng.uniform(size=n) < cfg.jump_probability * np.exp(self.log_pv[:, 1])
-            offsets = self.rng.normal(0.0, cfg.jump_std, size=(n, 2))
-            self.particles[jump, 0] += offsets[jump, 0]
-            self.particles[jump, 2] += offsets[jump, 1]
+            self._jump(parents, dt)
         self.log_pv = cfg.visibility.predict_log(self.log_pv)
 
     def step(self, frame_time: float, observation: FrameObservation | None) -> TrackState:
         cfg = self.config
         dt = self.clock.advance(frame_time)
+        self._theta_sigma = 0.0
         if dt > 0:
             self.predict(dt)
         h = self.clock.see(observation)
@@ -191,14 +261,16 @@ class RaoBlackwellisedParticleFilter:
         log_lik = 0.0
         scored = None
         if observation is not None:
-            hyps = np.column_stack([image_xy, self.particles[:, 4]])
             try:
-                scored = sanitise_scores(*observation.score_at(hyps), self.n_particles)
+                scored = self._score(observation, image_xy)
             except ObservationUnavailable:
                 observation = None  # the detector did not answer: predict only
+        elif cfg.orientation_proposal == "grid" and self._theta_sigma > 0:
+            # no observation: theta from its prior, as the 'prior' proposal would have drawn it
+            self.particles[:, 4] = wrap_degrees(self.particles[:, 4]
+                                                + self._theta_sigma * self.rng.standard_normal(self.n_particles))
         if scored is not None:
-            scores, _valid = scored
-            joint = self.log_pv + cfg.likelihood.log_likelihood(scores)  # log l_p(v) + log pi^-_p(v)
+            scores, joint = scored  # joint: log l_p(v) + log pi^-_p(v)
             log_m = np.logaddexp(joint[:, 0], joint[:, 1])  # log m_p
             self.log_pv = joint - log_m[:, None]  # log pi_p(v)
             log_w = self.log_w + log_m  # log w_{t-1} is normalised, so ...
@@ -206,6 +278,11 @@ class RaoBlackwellisedParticleFilter:
                 log_w = log_w + inside_image_log_prior(image_xy, observation.image_size)
             log_lik = resampling.logsumexp(log_w)  # ... this is log sum_p w_{t-1,p} m_p
             self.log_w = log_w - log_lik
+        if self.n_particles > self._n:
+            keep = self._keep_one_per_group()
+            image_xy = image_xy[keep]
+            if scored is not None:
+                scores = scores[keep]
 
         w = self.weights
         n_eff = resampling.ess(w)
@@ -236,6 +313,30 @@ class RaoBlackwellisedParticleFilter:
             self.log_pv = self.log_pv[idx]
             self.log_w = np.full(self.n_particles, -np.log(self.n_particles))
         return state
+
+    def _score(self, observation: FrameObservation, image_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One batched query: scores (N,) at the particles' (sampled) orientation and the joint
+        log l_p(v) + log pi^-_p(v) (N, 2) there; with the 'grid' proposal, the log m_p it returns
+        integrates theta over its random-walk step (see orientation_proposal)."""
+        cfg = self.config
+        n = self.n_particles
+        if cfg.orientation_proposal == "prior":
+            hyps = np.column_stack([image_xy, self.particles[:, 4]])
+            scores, _ = sanitise_scores(*observation.score_at(hyps), n)
+            return scores, self.log_pv + cfg.likelihood.log_likelihood(scores)
+        grid, valid = observation.score_grid(image_xy)
+        grid = np.asarray(grid, float)
+        valid = np.asarray(valid, bool).reshape(-1)
+        if grid.shape != (n, N_ANGLES) or valid.shape != (n,):
+            raise ValueError(f"score_grid returned shapes {grid.shape}, {valid.shape}; expected ({n}, 48)")
+        ok = valid & np.all(np.isfinite(grid), axis=1)
+        grid = np.where(ok[:, None], np.clip(grid, -1.0, 1.0), 0.0)
+        theta, log_m, scores, joint = sample_orientation(grid, self.particles[:, 4], self._theta_sigma,
+                                                         self.log_pv, cfg.likelihood.log_likelihood, self.rng)
+        self.particles[:, 4] = wrap_degrees(theta)
+        # the weight update below takes logaddexp over joint; give it the theta-marginal instead
+        corr = log_m - np.logaddexp(joint[:, 0], joint[:, 1])
+        return scores, joint + corr[:, None]
 
 
 RBPF = RaoBlackwellisedParticleFilter
