@@ -1,0 +1,76 @@
+"""Log-likelihood of target configurations: the weighted sum of paper section 3.1.
+
+For a configuration x of target t (part centres x_p, p = 1..P), with the target's reference
+histograms q_p, height H and this frame's association terms:
+
+    log L_t(x) = w_app  sum_p -lambda (1 - rho(box_p(x_p), q_p))                 (part fit to the image)
+               + w_da   sum_p log EL_p(x_p)                                     (expected likelihood, eq. 13)
+               - w_geo  sum_{(p, q) edges} |x_p - x_q - mu_p H|^2 / (2 (sigma H)^2)   (pairwise structure)
+
+Any configuration can be scored under any target's model (needed by the exchange move), in one
+batched evidence call for all of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .appearance import PartEvidence, part_boxes
+from .association import expected_log_likelihood
+from .body import BodyModel
+from .config import LikelihoodConfig
+
+
+@dataclass(frozen=True)
+class AssociationTerms:
+    """One frame's gated measurements and association probabilities, per target and part."""
+
+    z: np.ndarray  # (T, P, M, 2)
+    valid: np.ndarray  # (T, P, M)
+    beta: np.ndarray  # (T, P, M+1)
+    volume: np.ndarray  # (T, P)
+    r_cov: np.ndarray  # (T, P, 2, 2) R used in N(z_j; h(x), R)
+    p_gate: float
+
+
+@dataclass(frozen=True, eq=False)
+class TargetModels:
+    """What identifies each target: its body model, size and appearance."""
+
+    body: BodyModel
+    height: np.ndarray
+    """(T,) person height H, px."""
+    references: np.ndarray
+    """(T, P, B) reference colour histogram of every part."""
+
+    @property
+    def box_size(self) -> np.ndarray:
+        """(T, P, 2) part box sizes, px."""
+        return self.body.box[None] * self.height[:, None, None]
+
+
+def log_likelihood(pos: np.ndarray, model: np.ndarray, targets: TargetModels, evidence: PartEvidence,
+                   assoc: AssociationTerms | None, cfg: LikelihoodConfig) -> np.ndarray:
+    """(K, N) log L of configurations ``pos`` (K, N, P, 2) under the targets ``model`` (K,)."""
+    k_n, n_n, p_n = pos.shape[:3]
+    body = targets.body
+    model = np.asarray(model, np.intp)
+    total = np.zeros((k_n, n_n))
+    if cfg.w_appearance > 0:
+        size = np.broadcast_to(targets.box_size[model][:, None], pos.shape)
+        ref = np.broadcast_to((model[:, None, None] * p_n + np.arange(p_n)), pos.shape[:3])
+        rho = evidence.similarity(part_boxes(pos, size).reshape(-1, 4),
+                                  targets.references.reshape(-1, targets.references.shape[-1]), ref.ravel())
+        total += cfg.w_appearance * np.sum(-cfg.colour_lambda * (1.0 - rho.reshape(k_n, n_n, p_n)), axis=-1)
+    if cfg.w_association > 0 and assoc is not None:
+        diff = assoc.z[model][:, None] - pos[:, :, :, None, :]  # (K, N, P, M, 2)
+        el = expected_log_likelihood(diff, assoc.beta[model][:, None], assoc.valid[model][:, None],
+                                     assoc.volume[model][:, None], assoc.r_cov[model][:, None], assoc.p_gate)
+        total += cfg.w_association * el.sum(axis=-1)
+    if cfg.w_structure > 0 and p_n > 1:
+        h = targets.height[model][:, None, None, None]
+        d = body.to_relative(pos)[:, :, 1:] - body.offset[1:] * h
+        total -= cfg.w_structure * np.sum(d * d, axis=(-1, -2)) / (2.0 * (cfg.structure_sigma * h[..., 0, 0]) ** 2)
+    return total

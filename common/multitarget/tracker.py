@@ -1,0 +1,137 @@
+"""What the multi-target filters share: targets, particles, gating, association, likelihood, estimates.
+
+Particles of all targets live in one array (T, N, P, 4) -- population t holds target t's N
+configurations, [x, y, vx, vy] per part -- with log weights (T, N). Each component draws from its
+own generator, spawned from the tracker's seed: ``init``, ``motion``, ``genetic``, ``resample``,
+``mcmc``. Same seed, same frames -> bit-identical estimates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..tracking import resampling
+from ..tracking._frames import FrameClock
+from .appearance import PartEvidence, part_boxes
+from .association import association_probabilities, attribute_ratio, jpda_probabilities, log_gauss2
+from .body import body_model
+from .config import MultiTargetConfig
+from .gating import Measurements, gate_gamma, measure, update_measurement_cov
+from .likelihood import AssociationTerms, TargetModels, log_likelihood
+from .motion import project_to_structure
+from .state import InitError, MultiInit, MultiTrackState
+
+RNG_STREAMS = ("init", "motion", "genetic", "resample", "mcmc")
+
+
+def _rngs(seed: int | np.random.SeedSequence) -> dict[str, np.random.Generator]:
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
+    return {name: np.random.default_rng(s) for name, s in zip(RNG_STREAMS, ss.spawn(len(RNG_STREAMS)))}
+
+
+def normalise_rows(log_w: np.ndarray) -> np.ndarray:
+    """Per-target log-sum-exp normalisation of (T, N) log weights."""
+    return np.stack([resampling.normalise_log_weights(row) for row in log_w])
+
+
+class MultiTargetFilter:
+    """Base of :class:`~.epmcmc.EPMCMCFilter` and :class:`~.jpda_pf.JPDAParticleFilter`."""
+
+    def __init__(self, config: MultiTargetConfig | None, init: MultiInit, first_evidence: PartEvidence,
+                 seed: int | np.random.SeedSequence = 0) -> None:
+        """``init``: initial part centres and heights; the reference histograms of every part are taken
+        from ``first_evidence`` (the first frame) at those centres."""
+        self.config = cfg = config if config is not None else MultiTargetConfig()
+        self.body = body = body_model(cfg.n_parts)
+        parts = np.asarray(init.parts, float)
+        if parts.ndim != 3 or parts.shape[1:] != (body.n_parts, 2):
+            raise InitError(f"initial parts have shape {parts.shape}; the {cfg.n_parts}-part model needs (T, {body.n_parts}, 2)")
+        self.rngs = _rngs(seed)
+        height = np.asarray(init.height, float)
+        size = body.box[None] * height[:, None, None]
+        refs = first_evidence.histograms(part_boxes(parts, size).reshape(-1, 4)).reshape(len(parts), body.n_parts, -1)
+        self.targets = TargetModels(body, height, refs)
+        t_n, n = len(parts), cfg.n_particles
+        pos = parts[:, None] + cfg.init_spread * self.rngs["init"].standard_normal((t_n, n, body.n_parts, 2))
+        pos = body.to_absolute(project_to_structure(body.to_relative(pos), body, height[:, None]))
+        self.particles = np.concatenate([pos, np.zeros_like(pos)], axis=-1)
+        self.log_w = np.full((t_n, n), -np.log(n))
+        self.clock = FrameClock(None)
+        g = cfg.gate
+        r0 = g.gate_size**2 / gate_gamma(g.p_gate) if g.adaptive else cfg.association_model.measurement_sigma**2
+        self.r_cov = np.broadcast_to(r0 * np.eye(2), (t_n, body.n_parts, 2, 2)).copy()
+
+    @property
+    def n_targets(self) -> int:
+        return self.particles.shape[0]
+
+    @property
+    def n_particles(self) -> int:
+        return self.particles.shape[1]
+
+    def weights(self) -> np.ndarray:
+        """(T, N) normalised weights."""
+        w = np.exp(normalise_rows(self.log_w))
+        return w / w.sum(axis=1, keepdims=True)
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean (T, P, 2) and covariance (T, P, 2, 2) of every part's position."""
+        w = self.weights()
+        pos = self.particles[..., :2]
+        mean = np.einsum("tn,tnpd->tpd", w, pos)
+        d = pos - mean[:, None]
+        return mean, np.einsum("tn,tnpi,tnpj->tpij", w, d, d)
+
+    def estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted-mean part centres (T, P, 2) and velocities (T, P, 2)."""
+        m = np.einsum("tn,tnpd->tpd", self.weights(), self.particles)
+        return m[..., :2], m[..., 2:]
+
+    # ------------------------------------------------------------------ association
+
+    def associate(self, evidence: PartEvidence) -> tuple[Measurements, AssociationTerms]:
+        """Gate every part of every target, find the measurements, compute the association probabilities."""
+        cfg = self.config
+        a = cfg.association_model
+        mean, cov = self.moments()
+        meas = measure(mean, cov, self.r_cov, self.targets.box_size, self.targets.references, evidence, cfg.gate)
+        if cfg.association == "jpda":
+            return meas, self._jpda_terms(meas)
+        lg = log_gauss2(meas.z - meas.centre[:, :, None], meas.s_cov[:, :, None])
+        attr = attribute_ratio(meas.rho, a.attribute_lambda) if cfg.association == "elpda" else None
+        beta = association_probabilities(lg, meas.valid, meas.volume, a.p_detect, cfg.gate.p_gate, a.clutter_density, attr)
+        return meas, AssociationTerms(meas.z, meas.valid, beta, meas.volume, self.r_cov.copy(), cfg.gate.p_gate)
+
+    def _jpda_terms(self, meas: Measurements) -> AssociationTerms:
+        """JPDA: per part, every target's measurements pooled into one set shared by all targets."""
+        cfg = self.config
+        a = cfg.association_model
+        t_n, p_n, m_n = meas.valid.shape
+        z = np.broadcast_to(meas.z.transpose(1, 0, 2, 3).reshape(1, p_n, t_n * m_n, 2), (t_n, p_n, t_n * m_n, 2))
+        pooled_valid = meas.valid.transpose(1, 0, 2).reshape(1, p_n, t_n * m_n)
+        diff = z - meas.centre[:, :, None]
+        gated = pooled_valid & (np.sum(diff * diff, axis=-1) <= cfg.gate.gate_size**2)
+        lg = log_gauss2(diff, meas.s_cov[:, :, None])
+        beta = np.stack([jpda_probabilities(lg[:, p], gated[:, p], a.p_detect, cfg.gate.p_gate, a.clutter_density)
+                         for p in range(p_n)], axis=1)  # fmt: skip
+        return AssociationTerms(np.ascontiguousarray(z), gated, beta, meas.volume, self.r_cov.copy(), cfg.gate.p_gate)
+
+    def log_likelihood(self, pos: np.ndarray, model: np.ndarray, evidence: PartEvidence,
+                       terms: AssociationTerms | None) -> np.ndarray:
+        """(K, N) log L of configurations (K, N, P, 2) under targets ``model`` (K,)."""
+        return log_likelihood(pos, model, self.targets, evidence, terms, self.config.likelihood)
+
+    def finish(self, frame_time: float, meas: Measurements, terms: AssociationTerms, n_eff: np.ndarray,
+               moved: np.ndarray, acceptance: dict) -> MultiTrackState:
+        """Estimate, re-estimate R (adaptive gates), and report."""
+        parts, vel = self.estimate()
+        if self.config.gate.adaptive:
+            g = self.config.gate
+            self.r_cov = update_measurement_cov(self.r_cov, meas, terms.beta, parts, g.innovation_rate, g.min_sigma)
+        return MultiTrackState(
+            time=float(frame_time), parts=parts, velocity=vel, n_eff=n_eff, moved=moved,
+            gate_area=meas.volume.copy(), n_measurements=meas.valid.sum(axis=-1), acceptance=acceptance,
+        )  # fmt: skip
+
+    def step(self, frame_time: float, evidence: PartEvidence) -> MultiTrackState:  # pragma: no cover - abstract
+        raise NotImplementedError
