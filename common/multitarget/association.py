@@ -6,8 +6,13 @@ density lambda, so mu_F(m) = e^{-lambda V} (lambda V)^m / m!.
 
 Association probabilities (eqs. 10-12): beta_j ∝ p(z | theta_j, m) p(theta_j | m) with
 
-    p(theta_j | m) = P_D P_G mu_F(m-1) / D   (j >= 1),   (1 - P_D P_G) mu_F(m) / D   (j = 0),
-    D = m P_D P_G mu_F(m-1) + (1 - P_D P_G) mu_F(m),
+    p(theta_j | m) = P_D P_G mu_F(m-1) / (m D)   (j >= 1),   (1 - P_D P_G) mu_F(m) / D   (j = 0),
+    D = P_D P_G mu_F(m-1) + (1 - P_D P_G) mu_F(m),
+
+(as printed, eq. 12 puts the m of the j >= 1 prior into its denominator next to P_D P_G mu_F(m-1)
+only, and the priors then do not sum to one; the version above is Bar-Shalom and Li's, whose
+j >= 1 and j = 0 priors add up to one, and which with Poisson clutter reduces to the classical
+beta_j ∝ N_j a_j vs beta_0 ∝ lambda (1 - P_D P_G) / P_D),
     p(z | theta_j, m) = V^{-(m-1)} P_G^{-1} N(z_j; z^, S) a_j   (j >= 1),   V^{-m}   (j = 0),     (eq. 11)
 
 where a_j is the attribute likelihood ratio of measurement j (ELPDA: its colour similarity, see
@@ -75,7 +80,7 @@ def association_probabilities(log_gauss: np.ndarray, valid: np.ndarray, volume: 
     log_mu_m1 = log_poisson(m - 1, clutter_density * v)
     log_mu_m = log_poisson(m, clutter_density * v)
     # eq. 12 numerators in logs; the common 1/D cancels in the normalisation.
-    log_t = (math.log(pdpg) + log_mu_m1 - (m - 1) * np.log(v) - math.log(p_gate))[..., None] + log_gauss
+    log_t = (math.log(pdpg) + log_mu_m1 - np.log(np.maximum(m, 1)) - (m - 1) * np.log(v) - math.log(p_gate))[..., None] + log_gauss
     if attribute is not None:
         log_t = log_t + np.log(attribute)
     log_t = np.where(valid, log_t, -np.inf)

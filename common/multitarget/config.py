@@ -23,7 +23,7 @@ class MotionConfig(_Frozen):
     """Constant velocity applied jointly with the pictorial structure (paper section 4; :mod:`.motion`)."""
 
     body_accel: float = Field(
-        40.0, ge=0,
+        15.0, ge=0,
         description="Std of the acceleration shared by all parts of a body (white-noise acceleration), "
         "px/s per sqrt(s): the whole person speeds up, slows or turns.",
     )
@@ -52,6 +52,12 @@ class LikelihoodConfig(_Frozen):
         20.0, gt=0,
         description="Part appearance: log p = -colour_lambda * (1 - rho), rho the Bhattacharyya "
         "coefficient of the part's box against its reference histogram (Perez et al. 2002).",
+    )
+    colour_floor: float = Field(
+        0.5, ge=0, le=1,
+        description="Robust appearance: rho below this counts as this (log p = -lambda (1 - max(rho, floor))), "
+        "so a hidden part gives a flat likelihood instead of pulling the particles to the least-bad "
+        "pixels; the association term and the motion carry the part through the occlusion.",
     )
     w_appearance: float = Field(1.0, ge=0, description="Weight of the parts' appearance terms.")
     w_association: float = Field(1.0, ge=0, description="Weight of the parts' data-association (expected-likelihood) terms.")

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..tracking import resampling
 from .appearance import PartEvidence
-from .genetic import crossover, exchange_log_ratio, mh_accept, mutate
+from .genetic import crossover, exchange, mh_accept, mutate
 from .likelihood import AssociationTerms
 from .motion import predict
 from .state import MultiTrackState
@@ -110,9 +110,7 @@ class EPMCMCFilter(MultiTargetFilter):
                 perm = rng.permutation(n)
                 xi, xj = x[i], x[j, perm]
                 cross = self._log_target(np.stack([xj, xi]), pops[[i, j]], evidence, terms)  # pi_i(x_j), pi_j(x_i)
-                log_a = exchange_log_ratio(lp[i], cross[0], cross[1], lp[j, perm])
-                acc = mh_accept(log_a, rng)
-                new_i, new_j = np.where(acc[:, None, None], xj, xi), np.where(acc[:, None, None], xi, xj)
+                new_i, new_j, acc = exchange(xi, xj, lp[i], cross[0], cross[1], lp[j, perm], rng)
                 lp_i, lp_j = np.where(acc, cross[0], lp[i]), np.where(acc, cross[1], lp[j, perm])
                 x[i], lp[i] = new_i, lp_i
                 x[j, perm], lp[j, perm] = new_j, lp_j

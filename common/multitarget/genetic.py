@@ -82,6 +82,19 @@ def exchange_log_ratio(log_s_of_xs: np.ndarray, log_s_of_xq: np.ndarray,
     return log_s_of_xq + log_q_of_xs - log_s_of_xs - log_q_of_xq
 
 
+def exchange(xs: np.ndarray, xq: np.ndarray, log_s_of_xs: np.ndarray, log_s_of_xq: np.ndarray,
+             log_q_of_xs: np.ndarray, log_q_of_xq: np.ndarray,
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exchange move between paired states xs[k] (chain s) and xq[k] (chain q), (K, ...) each.
+
+    Returns the new states of both chains and the (K,) bool of accepted swaps (min(1, A), eq. 8).
+    One uniform per pair.
+    """
+    acc = mh_accept(exchange_log_ratio(log_s_of_xs, log_s_of_xq, log_q_of_xs, log_q_of_xq), rng)
+    a = acc.reshape(acc.shape + (1,) * (xs.ndim - 1))
+    return np.where(a, xq, xs), np.where(a, xs, xq), acc
+
+
 def mh_accept(log_ratio: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Metropolis-Hastings: accept with probability min(1, exp(log_ratio)) (one uniform each)."""
     log_ratio = np.asarray(log_ratio, float)

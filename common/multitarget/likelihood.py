@@ -3,7 +3,7 @@
 For a configuration x of target t (part centres x_p, p = 1..P), with the target's reference
 histograms q_p, height H and this frame's association terms:
 
-    log L_t(x) = w_app  sum_p -lambda (1 - rho(box_p(x_p), q_p))                 (part fit to the image)
+    log L_t(x) = w_app  sum_p -lambda (1 - max(rho(box_p(x_p), q_p), floor))     (part fit to the image)
                + w_da   sum_p log EL_p(x_p)                                     (expected likelihood, eq. 13)
                - w_geo  sum_{(p, q) edges} |x_p - x_q - mu_p H|^2 / (2 (sigma H)^2)   (pairwise structure)
 
@@ -63,7 +63,8 @@ def log_likelihood(pos: np.ndarray, model: np.ndarray, targets: TargetModels, ev
         ref = np.broadcast_to((model[:, None, None] * p_n + np.arange(p_n)), pos.shape[:3])
         rho = evidence.similarity(part_boxes(pos, size).reshape(-1, 4),
                                   targets.references.reshape(-1, targets.references.shape[-1]), ref.ravel())
-        total += cfg.w_appearance * np.sum(-cfg.colour_lambda * (1.0 - rho.reshape(k_n, n_n, p_n)), axis=-1)
+        rho = np.maximum(rho.reshape(k_n, n_n, p_n), cfg.colour_floor)
+        total += cfg.w_appearance * np.sum(-cfg.colour_lambda * (1.0 - rho), axis=-1)
     if cfg.w_association > 0 and assoc is not None:
         diff = assoc.z[model][:, None] - pos[:, :, :, None, :]  # (K, N, P, M, 2)
         el = expected_log_likelihood(diff, assoc.beta[model][:, None], assoc.valid[model][:, None],

@@ -39,7 +39,8 @@ def part_colours(shirt, trousers, skin) -> np.ndarray:
 
 def part_areas(p: Pose) -> np.ndarray:
     """(10,) drawn area of each part in pixels (analytic, ignoring occlusion)."""
-    torso = 0.5 * abs(np.cross(p.torso_corners[2] - p.torso_corners[0], p.torso_corners[3] - p.torso_corners[1]))
+    d1, d2 = p.torso_corners[2] - p.torso_corners[0], p.torso_corners[3] - p.torso_corners[1]
+    torso = 0.5 * abs(d1[0] * d2[1] - d1[1] * d2[0])  # quadrilateral area from its diagonals
     lengths = np.linalg.norm(p.segments[:, 1] - p.segments[:, 0], axis=1)
     limbs = lengths * p.widths + np.pi * (p.widths / 2) ** 2
     return np.concatenate([[np.pi * p.head_radius**2, torso], limbs])

@@ -85,12 +85,12 @@ class PeopleScene:
         r = rngs["people"]
         duration = cfg.n_frames / cfg.fps
         base_feet = 0.85 * cfg.height
-        shirts = r.permutation(len(SHIRTS))
+        shirts, trousers, skins = (r.permutation(len(c)) for c in (SHIRTS, TROUSERS, SKIN))  # distinct per person
         first_dir = 1.0 if r.random() < 0.5 else -1.0
         self.walkers: list[Walker] = []
         for k in range(cfg.n_people):
             h = cfg.person_height_px * r.uniform(0.92, 1.08)
-            colours = part_colours(SHIRTS[shirts[k]], TROUSERS[r.integers(len(TROUSERS))], SKIN[r.integers(len(SKIN))])
+            colours = part_colours(SHIRTS[shirts[k]], TROUSERS[trousers[k]], SKIN[skins[k]])
             self.walkers.append(Walker(
                 height=h, speed=cfg.speed_px_s * r.uniform(0.8, 1.2), direction=first_dir * (1 if k % 2 == 0 else -1),
                 feet_y=base_feet + r.uniform(-0.5, 0.5) * cfg.lane_spread_px,
