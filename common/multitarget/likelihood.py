@@ -4,7 +4,7 @@ For a configuration x of target t (part centres x_p, p = 1..P), with the target'
 histograms q_p, height H and this frame's association terms:
 
     log L_t(x) = w_app  sum_p -lambda (1 - max(rho(box_p(x_p), q_p), floor))     (part fit to the image)
-               + w_da   sum_p log EL_p(x_p)                                     (expected likelihood, eq. 13)
+               + w_da   sum_units log EL_u(x)                                    (expected likelihood, eq. 13)
                - w_geo  sum_{(p, q) edges} |x_p - x_q - mu_p H|^2 / (2 (sigma H)^2)   (pairwise structure)
 
 Any configuration can be scored under any target's model (needed by the exchange move), in one
@@ -25,14 +25,16 @@ from .config import LikelihoodConfig
 
 @dataclass(frozen=True)
 class AssociationTerms:
-    """One frame's gated measurements and association probabilities, per target and part."""
+    """One frame's gated measurements and association probabilities, per target and association unit
+    (the whole structure located by its root, or every part; see :mod:`.gating`)."""
 
-    z: np.ndarray  # (T, P, M, 2)
-    valid: np.ndarray  # (T, P, M)
-    beta: np.ndarray  # (T, P, M+1)
-    volume: np.ndarray  # (T, P)
-    r_cov: np.ndarray  # (T, P, 2, 2) R used in N(z_j; h(x), R)
+    z: np.ndarray  # (T, Q, M, 2) measured positions of each unit's located part
+    valid: np.ndarray  # (T, Q, M)
+    beta: np.ndarray  # (T, Q, M+1)
+    volume: np.ndarray  # (T, Q)
+    r_cov: np.ndarray  # (T, Q, 2, 2) R used in N(z_j; h(x), R)
     p_gate: float
+    located: np.ndarray  # (Q,) the part whose position each unit's measurements measure
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,7 +68,7 @@ def log_likelihood(pos: np.ndarray, model: np.ndarray, targets: TargetModels, ev
         rho = np.maximum(rho.reshape(k_n, n_n, p_n), cfg.colour_floor)
         total += cfg.w_appearance * np.sum(-cfg.colour_lambda * (1.0 - rho), axis=-1)
     if cfg.w_association > 0 and assoc is not None:
-        diff = assoc.z[model][:, None] - pos[:, :, :, None, :]  # (K, N, P, M, 2)
+        diff = assoc.z[model][:, None] - pos[:, :, assoc.located, None, :]  # (K, N, Q, M, 2)
         el = expected_log_likelihood(diff, assoc.beta[model][:, None], assoc.valid[model][:, None],
                                      assoc.volume[model][:, None], assoc.r_cov[model][:, None], assoc.p_gate)
         total += cfg.w_association * el.sum(axis=-1)

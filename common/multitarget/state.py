@@ -88,9 +88,9 @@ class MultiTrackState:
     moved: np.ndarray
     """(T,) bool: the population was resampled (and moved by population MCMC)."""
     gate_area: np.ndarray
-    """(T, P) validation-gate area V, px^2."""
+    """(T, Q) validation-gate area V of every association unit, px^2."""
     n_measurements: np.ndarray
-    """(T, P) measurements inside each gate."""
+    """(T, Q) measurements inside each gate."""
     acceptance: dict
     """Population-MCMC acceptance rates by move ('mutation', 'crossover', 'exchange'); empty if none ran."""
 

@@ -16,7 +16,7 @@ from .appearance import PartEvidence, part_boxes
 from .association import association_probabilities, attribute_ratio, jpda_probabilities, log_gauss2
 from .body import body_model
 from .config import MultiTargetConfig
-from .gating import Measurements, gate_gamma, measure, update_measurement_cov
+from .gating import Measurements, gate_gamma, measure, units, update_measurement_cov
 from .likelihood import AssociationTerms, TargetModels, log_likelihood
 from .motion import project_to_structure
 from .state import InitError, MultiInit, MultiTrackState
@@ -58,8 +58,8 @@ class MultiTargetFilter:
         self.log_w = np.full((t_n, n), -np.log(n))
         self.clock = FrameClock(None)
         g = cfg.gate
-        r0 = g.gate_size**2 / gate_gamma(g.p_gate) if g.adaptive else cfg.association_model.measurement_sigma**2
-        self.r_cov = np.broadcast_to(r0 * np.eye(2), (t_n, body.n_parts, 2, 2)).copy()
+        r0 = g.gate_size**2 / gate_gamma(g.p_gate)
+        self.r_cov = np.broadcast_to(r0 * np.eye(2), (t_n, len(units(body.n_parts, g.level)[1]), 2, 2)).copy()
 
     @property
     def n_targets(self) -> int:
@@ -90,7 +90,7 @@ class MultiTargetFilter:
     # ------------------------------------------------------------------ association
 
     def associate(self, evidence: PartEvidence) -> tuple[Measurements, AssociationTerms]:
-        """Gate every part of every target, find the measurements, compute the association probabilities."""
+        """Gate every target, find its measurements, compute the association probabilities."""
         cfg = self.config
         a = cfg.association_model
         mean, cov = self.moments()
@@ -100,21 +100,25 @@ class MultiTargetFilter:
         lg = log_gauss2(meas.z - meas.centre[:, :, None], meas.s_cov[:, :, None])
         attr = attribute_ratio(meas.rho, a.attribute_lambda) if cfg.association == "elpda" else None
         beta = association_probabilities(lg, meas.valid, meas.volume, a.p_detect, cfg.gate.p_gate, a.clutter_density, attr)
-        return meas, AssociationTerms(meas.z, meas.valid, beta, meas.volume, self.r_cov.copy(), cfg.gate.p_gate)
+        return meas, self._terms(meas.z, meas.valid, beta, meas.volume)
+
+    def _terms(self, z, valid, beta, volume) -> AssociationTerms:
+        r = self.config.association_model.measurement_sigma**2 * np.eye(2)  # R of eq. 13, the same for every method
+        return AssociationTerms(z, valid, beta, volume, np.broadcast_to(r, self.r_cov.shape).copy(),
+                                self.config.gate.p_gate, units(self.body.n_parts, self.config.gate.level)[1])
 
     def _jpda_terms(self, meas: Measurements) -> AssociationTerms:
-        """JPDA: per part, every target's measurements pooled into one set shared by all targets."""
+        """JPDA: per unit, every target's measurements pooled into one set shared by all targets."""
         cfg = self.config
         a = cfg.association_model
-        t_n, p_n, m_n = meas.valid.shape
-        z = np.broadcast_to(meas.z.transpose(1, 0, 2, 3).reshape(1, p_n, t_n * m_n, 2), (t_n, p_n, t_n * m_n, 2))
-        pooled_valid = meas.valid.transpose(1, 0, 2).reshape(1, p_n, t_n * m_n)
+        t_n, q_n, m_n = meas.valid.shape
+        z = np.broadcast_to(meas.z.transpose(1, 0, 2, 3).reshape(1, q_n, t_n * m_n, 2), (t_n, q_n, t_n * m_n, 2))
         diff = z - meas.centre[:, :, None]
-        gated = pooled_valid & (np.sum(diff * diff, axis=-1) <= cfg.gate.gate_size**2)
+        gated = meas.valid.transpose(1, 0, 2).reshape(1, q_n, -1) & (np.sum(diff * diff, axis=-1) <= cfg.gate.gate_size**2)
         lg = log_gauss2(diff, meas.s_cov[:, :, None])
-        beta = np.stack([jpda_probabilities(lg[:, p], gated[:, p], a.p_detect, cfg.gate.p_gate, a.clutter_density)
-                         for p in range(p_n)], axis=1)  # fmt: skip
-        return AssociationTerms(np.ascontiguousarray(z), gated, beta, meas.volume, self.r_cov.copy(), cfg.gate.p_gate)
+        beta = np.stack([jpda_probabilities(lg[:, q], gated[:, q], a.p_detect, cfg.gate.p_gate, a.clutter_density)
+                         for q in range(q_n)], axis=1)  # fmt: skip
+        return self._terms(np.ascontiguousarray(z), gated, beta, meas.volume)
 
     def log_likelihood(self, pos: np.ndarray, model: np.ndarray, evidence: PartEvidence,
                        terms: AssociationTerms | None) -> np.ndarray:
@@ -127,7 +131,8 @@ class MultiTargetFilter:
         parts, vel = self.estimate()
         if self.config.gate.adaptive:
             g = self.config.gate
-            self.r_cov = update_measurement_cov(self.r_cov, meas, terms.beta, parts, g.innovation_rate, g.min_sigma)
+            self.r_cov = update_measurement_cov(self.r_cov, meas, terms.beta, g.innovation_rate, g.min_sigma,
+                                                g.gate_size / np.sqrt(gate_gamma(g.p_gate)))
         return MultiTrackState(
             time=float(frame_time), parts=parts, velocity=vel, n_eff=n_eff, moved=moved,
             gate_area=meas.volume.copy(), n_measurements=meas.valid.sum(axis=-1), acceptance=acceptance,
