@@ -83,58 +83,57 @@ def _summary(results: list[dict], methods) -> dict:
     return out
 
 
-def _plots(main: list[dict], sweeps: dict, out_dir: Path) -> list[str]:
+def _figure(path: Path, size, xlabel: str, ylabel: str, title: str, draw) -> str:
+    """One PNG: ``draw(ax)`` plots, then labels, legend, save."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    fig, ax = plt.subplots(figsize=size)
+    draw(ax)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return str(path)
+
+
+def _plots(main: list[dict], sweeps: dict, out_dir: Path) -> list[str]:
     from common.multitarget import METHODS
 
     paths = []
     # Figs. 5-6: combined RMSE of target 1 and target 2 over the runs (the paper's Monte Carlo cycles)
     for t in range(min(2, len(main[0]["methods"]["epmcmc-elpda"]["rmse_per_target"]))):
-        fig, ax = plt.subplots(figsize=(7, 3.5))
-        for m in SWEEP_METHODS:
-            ax.plot([r["seed"] for r in main], [r["methods"][m]["rmse_per_target"][t] for r in main], "o-", label=m)
-        ax.set_xlabel("scene seed (Monte Carlo run)")
-        ax.set_ylabel("combined RMSE (px)")
-        ax.set_title(f"Combined RMSE of target {t + 1} (paper Fig. {5 + t})")
-        ax.legend()
-        fig.tight_layout()
-        paths.append(str(out_dir / f"rmse_target{t + 1}.png"))
-        fig.savefig(paths[-1], dpi=100)
-        plt.close(fig)
-    # error per frame of the first seed, every method
-    fig, ax = plt.subplots(figsize=(9, 3.8))
+        def draw(ax, t=t):
+            for m in SWEEP_METHODS:
+                ax.plot([r["seed"] for r in main], [r["methods"][m]["rmse_per_target"][t] for r in main], "o-", label=m)
+
+        paths.append(_figure(out_dir / f"rmse_target{t + 1}.png", (7, 3.5), "scene seed (Monte Carlo run)",
+                             "combined RMSE (px)", f"Combined RMSE of target {t + 1} (paper Fig. {5 + t})", draw))
     r0 = main[0]
-    for c in r0["crossings"]:
-        ax.axvline(c[2], color="0.8", lw=1)
-    for m in METHODS:
-        e = np.array(r0["methods"][m]["error_per_frame"])
-        ax.plot(e.mean(axis=1), label=m)
-    ax.set_xlabel("frame (grey: crossings)")
-    ax.set_ylabel("mean part error (px)")
-    ax.set_title(f"Seed {r0['seed']}: error per frame, mean over targets and parts")
-    ax.legend()
-    fig.tight_layout()
-    paths.append(str(out_dir / "error_per_frame.png"))
-    fig.savefig(paths[-1], dpi=100)
-    plt.close(fig)
+
+    def draw_frames(ax):
+        for c in r0["crossings"]:
+            ax.axvline(c[2], color="0.8", lw=1)
+        for m in METHODS:
+            ax.plot(np.array(r0["methods"][m]["error_per_frame"]).mean(axis=1), label=m)
+
+    paths.append(_figure(out_dir / "error_per_frame.png", (9, 3.8), "frame (grey: crossings)", "mean part error (px)",
+                         f"Seed {r0['seed']}: error per frame, mean over targets and parts", draw_frames))
     titles = {"targets": ("number of targets", 7), "parts": ("number of parts", 8), "gate": ("gate size (px)", 9)}
     for kind, table in sweeps.items():
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        for m in SWEEP_METHODS:
-            xs = sorted(table[m], key=float)
-            ax.plot([float(x) for x in xs], [table[m][x] for x in xs], "o-", label=m)
-        ax.set_xlabel(titles[kind][0])
-        ax.set_ylabel("combined RMSE (px)")
-        ax.set_title(f"Combined RMSE vs {titles[kind][0]} (paper Fig. {titles[kind][1]})")
-        ax.legend()
-        fig.tight_layout()
-        paths.append(str(out_dir / f"sweep_{kind}.png"))
-        fig.savefig(paths[-1], dpi=100)
-        plt.close(fig)
+        def draw_sweep(ax, table=table):
+            for m in SWEEP_METHODS:
+                xs = sorted(table[m], key=float)
+                ax.plot([float(x) for x in xs], [table[m][x] for x in xs], "o-", label=m)
+
+        label, fig_no = titles[kind]
+        paths.append(_figure(out_dir / f"sweep_{kind}.png", (6, 3.5), label, "combined RMSE (px)",
+                             f"Combined RMSE vs {label} (paper Fig. {fig_no})", draw_sweep))
     return paths
 
 

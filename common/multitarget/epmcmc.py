@@ -26,9 +26,8 @@ from ..tracking import resampling
 from .appearance import PartEvidence
 from .genetic import crossover, exchange, mh_accept, mutate
 from .likelihood import AssociationTerms
-from .motion import predict
 from .state import MultiTrackState
-from .tracker import MultiTargetFilter, normalise_rows
+from .tracker import MultiTargetFilter
 
 
 class EPMCMCFilter(MultiTargetFilter):
@@ -58,22 +57,13 @@ class EPMCMCFilter(MultiTargetFilter):
         return self.log_likelihood(x[..., :2], model, evidence, terms) + self._log_prior(x, model)
 
     def step(self, frame_time: float, evidence: PartEvidence) -> MultiTrackState:
-        cfg = self.config
-        dt = self.clock.advance(frame_time)
-        t_n, n = self.log_w.shape
-        if dt > 0:
-            self.particles = predict(self.particles, self.body, self.targets.height, dt, cfg.motion, self.rngs["motion"])
+        if self.advance(frame_time):
             self._genetic_proposal()
         w = self.weights()
         self._prior_mean = np.einsum("tn,tnpk->tpk", w, self.particles)
         var = np.einsum("tn,tnpk->tpk", w, (self.particles - self._prior_mean[:, None]) ** 2)
-        self._prior_std = np.sqrt(np.maximum(var, cfg.evolution.prior_floor**2))
-        meas, terms = self.associate(evidence)
-        ll = self.log_likelihood(self.particles[..., :2], np.arange(t_n), evidence, terms)
-        self.log_w = normalise_rows(self.log_w + ll)
-        w = self.weights()
-        n_eff = np.array([resampling.ess(row) for row in w])
-        moved = n_eff <= cfg.evolution.ess_threshold_fraction * n
+        self._prior_std = np.sqrt(np.maximum(var, self.config.evolution.prior_floor**2))
+        meas, terms, w, n_eff, moved = self.weigh(evidence)
         acceptance: dict = {}
         if moved.any():
             acceptance = self._resample_move(np.flatnonzero(moved), w, evidence, terms)

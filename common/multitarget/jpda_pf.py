@@ -14,29 +14,19 @@ import numpy as np
 
 from ..tracking import resampling
 from .appearance import PartEvidence
-from .motion import predict
 from .state import MultiTrackState
-from .tracker import MultiTargetFilter, normalise_rows
+from .tracker import MultiTargetFilter
 
 
 class JPDAParticleFilter(MultiTargetFilter):
     """``step(frame_time, evidence) -> MultiTrackState``; one batched likelihood call per frame."""
 
     def step(self, frame_time: float, evidence: PartEvidence) -> MultiTrackState:
-        cfg = self.config
-        dt = self.clock.advance(frame_time)
-        t_n, n = self.log_w.shape
-        if dt > 0:
-            self.particles = predict(self.particles, self.body, self.targets.height, dt, cfg.motion, self.rngs["motion"])
-        meas, terms = self.associate(evidence)
-        ll = self.log_likelihood(self.particles[..., :2], np.arange(t_n), evidence, terms)
-        self.log_w = normalise_rows(self.log_w + ll)
-        w = self.weights()
-        n_eff = np.array([resampling.ess(row) for row in w])
-        moved = n_eff <= cfg.evolution.ess_threshold_fraction * n
+        self.advance(frame_time)
+        meas, terms, w, n_eff, moved = self.weigh(evidence)
         state = self.finish(frame_time, meas, terms, n_eff, moved, {})
-        scheme = resampling.get_scheme(cfg.resampling)
+        scheme = resampling.get_scheme(self.config.resampling)
         for t in np.flatnonzero(moved):
             self.particles[t] = self.particles[t, scheme(w[t], self.rngs["resample"])]
-            self.log_w[t] = -np.log(n)
+            self.log_w[t] = -np.log(self.n_particles)
         return state

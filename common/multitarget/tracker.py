@@ -18,7 +18,7 @@ from .body import body_model
 from .config import MultiTargetConfig
 from .gating import Measurements, gate_gamma, measure, units, update_measurement_cov
 from .likelihood import AssociationTerms, TargetModels, log_likelihood
-from .motion import project_to_structure
+from .motion import predict, project_to_structure
 from .state import InitError, MultiInit, MultiTrackState
 
 RNG_STREAMS = ("init", "motion", "genetic", "resample", "mcmc")
@@ -124,6 +124,25 @@ class MultiTargetFilter:
                        terms: AssociationTerms | None) -> np.ndarray:
         """(K, N) log L of configurations (K, N, P, 2) under targets ``model`` (K,)."""
         return log_likelihood(pos, model, self.targets, evidence, terms, self.config.likelihood)
+
+    def advance(self, frame_time: float) -> bool:
+        """Move to ``frame_time``: sample the transition prior (True) or, on the first step, nothing (False)."""
+        dt = self.clock.advance(frame_time)
+        if dt > 0:
+            self.particles = predict(self.particles, self.body, self.targets.height, dt, self.config.motion,
+                                     self.rngs["motion"])  # fmt: skip
+        return dt > 0
+
+    def weigh(self, evidence: PartEvidence) -> tuple[Measurements, AssociationTerms, np.ndarray, np.ndarray, np.ndarray]:
+        """Gate, associate and update the log weights by the likelihood; returns the measurements, the
+        association terms, the normalised weights (T, N), the ESS (T,) and which populations fell to
+        the resampling threshold (T,)."""
+        meas, terms = self.associate(evidence)
+        ll = self.log_likelihood(self.particles[..., :2], np.arange(self.n_targets), evidence, terms)
+        self.log_w = normalise_rows(self.log_w + ll)
+        w = self.weights()
+        n_eff = np.array([resampling.ess(row) for row in w])
+        return meas, terms, w, n_eff, n_eff <= self.config.evolution.ess_threshold_fraction * self.n_particles
 
     def finish(self, frame_time: float, meas: Measurements, terms: AssociationTerms, n_eff: np.ndarray,
                moved: np.ndarray, acceptance: dict) -> MultiTrackState:
