@@ -85,7 +85,7 @@ def test_jpda_two_targets_one_measurement_by_hand():
     assert np.allclose(beta.sum(axis=1), 1.0)
 
 
-def test_gate_is_re_estimated_from_residuals():
+def test_gate_is_re_estimated_from_innovations():
     from common.multitarget.gating import Measurements
 
     r = np.broadcast_to(25.0 * np.eye(2), (1, 1, 2, 2)).copy()
@@ -94,8 +94,8 @@ def test_gate_is_re_estimated_from_residuals():
                         volume=np.ones((1, 1)), centre=np.zeros((1, 1, 2)), s_cov=r)
     beta = np.array([[[0.0, 1.0, 0.0]]])
     for _ in range(30):
-        r = update_measurement_cov(r, meas, beta, np.zeros((1, 1, 2)), rate=0.3, min_sigma=1.0)
-    # residual (2, 0) every frame: R -> diag(4, floor 1)
+        r = update_measurement_cov(r, meas, beta, rate=0.3, min_sigma=1.0, max_sigma=10.0)
+    # innovation (2, 0) against the prediction every frame: R -> diag(4, floor 1)
     assert np.allclose(r[0, 0], np.diag([4.0, 1.0]), atol=1e-3)
     assert gate_gamma(0.95) == pytest.approx(5.991464547, rel=1e-9)
 
@@ -105,3 +105,22 @@ def test_residual_resampling_is_available_as_a_plain_function():
     idx = resampling.residual(w, np.random.default_rng(0))
     assert np.array_equal(idx, [0, 0, 1, 2]) or np.array_equal(idx, [0, 0, 1, 3])
     assert resampling.get_scheme("residual") is resampling.residual
+
+
+def test_plain_pda_uses_the_combined_measurement():
+    # two measurements: the PDAF's combined measurement z_c = z^ + sum_j beta_j nu_j lies between them
+    diff_pred = np.array([[4.0, 0.0], [-2.0, 0.0]])
+    beta = np.array([0.2, 0.5, 0.3])
+    valid = np.array([True, True])
+    r = 9.0 * np.eye(2)
+    nu = 0.5 * diff_pred[0] + 0.3 * diff_pred[1]
+    spread = 0.5 * np.outer(diff_pred[0], diff_pred[0]) + 0.3 * np.outer(diff_pred[1], diff_pred[1]) - np.outer(nu, nu)
+    cov = (r + spread) / 0.8
+    x = np.array([[0.0, 0.0], [nu[0], nu[1]], [4.0, 0.0]])  # h(x) - z^ of three particles
+    got = da.pda_log_likelihood(diff_pred, beta, valid, x, r)
+    inv = np.linalg.inv(cov)
+    want = [-0.5 * (nu - xi) @ inv @ (nu - xi) for xi in x]
+    assert got == pytest.approx(want, rel=1e-12, abs=1e-12)
+    assert got[1] == 0.0 and got[2] < got[0]  # the particle on a measurement is not favoured
+    # nothing in the gate: flat
+    assert np.all(da.pda_log_likelihood(diff_pred, np.array([1.0, 0.0, 0.0]), np.array([False, False]), x, r) == 0.0)

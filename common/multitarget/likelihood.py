@@ -4,7 +4,7 @@ For a configuration x of target t (part centres x_p, p = 1..P), with the target'
 histograms q_p, height H and this frame's association terms:
 
     log L_t(x) = w_app  sum_p -lambda (1 - max(rho(box_p(x_p), q_p), floor))     (part fit to the image)
-               + w_da   sum_units log EL_u(x)                                    (expected likelihood, eq. 13)
+               + w_da   sum_units log EL_u(x)      (expected likelihood, eq. 13; plain PDA: combined measurement)
                - w_geo  sum_{(p, q) edges} |x_p - x_q - mu_p H|^2 / (2 (sigma H)^2)   (pairwise structure)
 
 Any configuration can be scored under any target's model (needed by the exchange move), in one
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .appearance import PartEvidence, part_boxes
-from .association import expected_log_likelihood
+from .association import expected_log_likelihood, pda_log_likelihood
 from .body import BodyModel
 from .config import LikelihoodConfig
 
@@ -35,6 +35,8 @@ class AssociationTerms:
     r_cov: np.ndarray  # (T, Q, 2, 2) R used in N(z_j; h(x), R)
     p_gate: float
     located: np.ndarray  # (Q,) the part whose position each unit's measurements measure
+    centre: np.ndarray  # (T, Q, 2) gate centres z^
+    combined: bool = False  # True: plain PDA's combined-measurement likelihood instead of eq. 13
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,9 +70,15 @@ def log_likelihood(pos: np.ndarray, model: np.ndarray, targets: TargetModels, ev
         rho = np.maximum(rho.reshape(k_n, n_n, p_n), cfg.colour_floor)
         total += cfg.w_appearance * np.sum(-cfg.colour_lambda * (1.0 - rho), axis=-1)
     if cfg.w_association > 0 and assoc is not None:
-        diff = assoc.z[model][:, None] - pos[:, :, assoc.located, None, :]  # (K, N, Q, M, 2)
-        el = expected_log_likelihood(diff, assoc.beta[model][:, None], assoc.valid[model][:, None],
-                                     assoc.volume[model][:, None], assoc.r_cov[model][:, None], assoc.p_gate)
+        if assoc.combined:
+            ctr = assoc.centre[model]
+            el = pda_log_likelihood((assoc.z - assoc.centre[:, :, None])[model][:, None], assoc.beta[model][:, None],
+                                    assoc.valid[model][:, None], pos[:, :, assoc.located] - ctr[:, None],
+                                    assoc.r_cov[model][:, None])  # fmt: skip
+        else:
+            diff = assoc.z[model][:, None] - pos[:, :, assoc.located, None, :]  # (K, N, Q, M, 2)
+            el = expected_log_likelihood(diff, assoc.beta[model][:, None], assoc.valid[model][:, None],
+                                         assoc.volume[model][:, None], assoc.r_cov[model][:, None], assoc.p_gate)
         total += cfg.w_association * el.sum(axis=-1)
     if cfg.w_structure > 0 and p_n > 1:
         h = targets.height[model][:, None, None, None]

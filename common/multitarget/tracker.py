@@ -100,12 +100,13 @@ class MultiTargetFilter:
         lg = log_gauss2(meas.z - meas.centre[:, :, None], meas.s_cov[:, :, None])
         attr = attribute_ratio(meas.rho, a.attribute_lambda) if cfg.association == "elpda" else None
         beta = association_probabilities(lg, meas.valid, meas.volume, a.p_detect, cfg.gate.p_gate, a.clutter_density, attr)
-        return meas, self._terms(meas.z, meas.valid, beta, meas.volume)
+        return meas, self._terms(meas.z, meas.valid, beta, meas.volume, meas.centre, cfg.association == "pda")
 
-    def _terms(self, z, valid, beta, volume) -> AssociationTerms:
-        r = self.config.association_model.measurement_sigma**2 * np.eye(2)  # R of eq. 13, the same for every method
+    def _terms(self, z, valid, beta, volume, centre, combined: bool = False) -> AssociationTerms:
+        r = self.config.association_model.measurement_sigma**2 * np.eye(2)  # R, the same for every method
         return AssociationTerms(z, valid, beta, volume, np.broadcast_to(r, self.r_cov.shape).copy(),
-                                self.config.gate.p_gate, units(self.body.n_parts, self.config.gate.level)[1])
+                                self.config.gate.p_gate, units(self.body.n_parts, self.config.gate.level)[1],
+                                centre, combined)  # fmt: skip
 
     def _jpda_terms(self, meas: Measurements) -> AssociationTerms:
         """JPDA: per unit, every target's measurements pooled into one set shared by all targets."""
@@ -118,7 +119,7 @@ class MultiTargetFilter:
         lg = log_gauss2(diff, meas.s_cov[:, :, None])
         beta = np.stack([jpda_probabilities(lg[:, q], gated[:, q], a.p_detect, cfg.gate.p_gate, a.clutter_density)
                          for q in range(q_n)], axis=1)  # fmt: skip
-        return self._terms(np.ascontiguousarray(z), gated, beta, meas.volume)
+        return self._terms(np.ascontiguousarray(z), gated, beta, meas.volume, meas.centre)
 
     def log_likelihood(self, pos: np.ndarray, model: np.ndarray, evidence: PartEvidence,
                        terms: AssociationTerms | None) -> np.ndarray:
