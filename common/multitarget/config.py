@@ -159,7 +159,9 @@ class MultiTargetConfig(_Frozen):
     filter: Literal["epmcmc", "sir"] = Field(
         "epmcmc", description="epmcmc: evolving-population MCMC filter; sir: generic particle filter (the JPDA-PF baseline)."
     )
-    association: Literal["elpda", "pda", "jpda"] = Field("elpda", description="Data association of the gated measurements.")
+    association: Literal["elpda", "pda", "jpda"] = Field(
+        "elpda", description="Data association of the gated measurements (see :mod:`.association`)."
+    )
     n_parts: Literal[1, 2, 6, 10] = Field(10, description="Pictorial-structure model (paper Fig. 8 levels).")
     n_particles: int = Field(200, ge=2, le=100_000, description="Particles per target (paper: 500).")
     init_spread: float = Field(2.0, ge=0, description="Std of the initial particles about the initial part positions, px.")
@@ -181,9 +183,11 @@ METHODS = ("epmcmc-elpda", "epmcmc-pda", "jpda-pf")
 def method_config(method: str, **updates) -> MultiTargetConfig:
     """The config of ``method`` (one of :data:`METHODS`), with top-level field ``updates``.
 
-    epmcmc-elpda: EPMCMC + ELPDA with the gate re-estimated every frame; epmcmc-pda: the same filter
-    with plain PDA in a fixed gate; jpda-pf: a generic particle filter (systematic resampling, no
-    genetic moves) with joint PDA in fixed gates (Jaward et al. 2006).
+    epmcmc-elpda: EPMCMC + ELPDA: association probabilities with the measurements' colour attributes,
+    particle weights by the expected likelihood (eq. 13), gate re-estimated every frame; epmcmc-pda:
+    the same filter with plain PDA: kinematic association probabilities, the PDAF's combined
+    measurement, a fixed gate; jpda-pf: a generic particle filter (systematic resampling, no genetic
+    moves) with joint PDA in fixed gates (Jaward et al. 2006).
     """
     presets = {
         "epmcmc-elpda": dict(filter="epmcmc", association="elpda", adaptive=True),

@@ -16,6 +16,7 @@ import numpy as np
 from ..scene.people import PeopleScene, PeopleSceneConfig
 from . import make_filter
 from .appearance import HistogramEvidence
+from .body import body_model
 from .config import MultiTargetConfig
 from .metrics import combined_rmse, identities_kept, mot_metrics, ospa
 from .state import MultiInit
@@ -28,8 +29,6 @@ def evaluate_scene(scene_config: PeopleSceneConfig, seed: int, configs: dict[str
     ev = HistogramEvidence(first.image, next(iter(configs.values())).histogram)
     filters = {}
     for name, cfg in configs.items():
-        from .body import body_model
-
         init = MultiInit.from_truth(first.truth.parts, first.truth.boxes, body_model(cfg.n_parts))
         filters[name] = make_filter(cfg, init, ev, seed)
     est = {k: [] for k in configs}
