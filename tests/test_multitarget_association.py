@@ -97,6 +97,10 @@ def test_gate_is_re_estimated_from_innovations():
         r = update_measurement_cov(r, meas, beta, rate=0.3, min_sigma=1.0, max_sigma=10.0)
     # innovation (2, 0) against the prediction every frame: R -> diag(4, floor 1)
     assert np.allclose(r[0, 0], np.diag([4.0, 1.0]), atol=1e-3)
+    # a missed target (beta_0 = 1) gets its gate widened back to the largest R
+    for _ in range(30):
+        r = update_measurement_cov(r, meas, np.array([[[1.0, 0.0, 0.0]]]), rate=0.3, min_sigma=1.0, max_sigma=10.0)
+    assert np.allclose(r[0, 0], 100.0 * np.eye(2), atol=1e-2)
     assert gate_gamma(0.95) == pytest.approx(5.991464547, rel=1e-9)
 
 

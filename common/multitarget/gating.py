@@ -119,17 +119,19 @@ def measure(parts: np.ndarray, part_cov: np.ndarray, r_cov: np.ndarray, box_size
 
 def update_measurement_cov(r_cov: np.ndarray, meas: Measurements, beta: np.ndarray, rate: float,
                            min_sigma: float, max_sigma: float) -> np.ndarray:
-    """The gate's R_k re-estimated from this frame's innovations nu_j = z_j - z^ (z^ the predicted root):
+    """The gate's R_k re-estimated from this frame's innovations nu_j = z_j - z^ (z^ the prediction):
 
-        R_k = (1 - rate) R_{k-1} + rate (sum_j beta_j nu_j nu_j^T + beta_0 R_{k-1}),
+        R_k = (1 - rate) R_{k-1} + rate (sum_j beta_j nu_j nu_j^T + beta_0 max_sigma^2 I),
 
     eigenvalues clipped to [min_sigma^2, max_sigma^2]. The innovations are taken against the
     prediction, not the posterior (which the measurement itself pulls in, so its residuals would
-    shrink R frame after frame). Shapes: r_cov (..., 2, 2), meas.z (..., M, 2), beta (..., M+1)."""
+    shrink R frame after frame); the share beta_0 of "no measurement is the target's" relaxes R back
+    to the widest gate, so that a target that is missed gets a wider gate rather than keeping a
+    narrow one. Shapes: r_cov (..., 2, 2), meas.z (..., M, 2), beta (..., M+1)."""
     e = meas.z - meas.centre[..., None, :]
     outer = e[..., :, None] * e[..., None, :]
     b = np.where(meas.valid, beta[..., 1:], 0.0)
-    emp = np.einsum("...m,...mij->...ij", b, outer) + beta[..., 0, None, None] * r_cov
+    emp = np.einsum("...m,...mij->...ij", b, outer) + beta[..., 0, None, None] * max_sigma**2 * np.eye(2)
     new = (1.0 - rate) * r_cov + rate * emp
     w, v = np.linalg.eigh(new)
     return np.einsum("...ij,...j,...kj->...ik", v, np.clip(w, min_sigma**2, max_sigma**2), v)
