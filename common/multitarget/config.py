@@ -1,0 +1,205 @@
+"""Every parameter of the multi-target articulated trackers, declared once with its meaning.
+
+Units: pixels and seconds; sizes of body parts and structure tolerances in units of the
+target's height H (so the same settings work for people of any size). Defaults follow Bhaskar
+and Mihaylova (2011) where the paper gives a value (validation gate 15, residual resampling,
+constant-velocity motion); the rest were set on the synthetic people scene and are marked so.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from .appearance import HistogramConfig
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class MotionConfig(_Frozen):
+    """Constant velocity applied jointly with the pictorial structure (paper section 4; :mod:`.motion`)."""
+
+    body_accel: float = Field(
+        15.0, ge=0,
+        description="Std of the acceleration shared by all parts of a body (white-noise acceleration), "
+        "px/s per sqrt(s): the whole person speeds up, slows or turns.",
+    )
+    part_jitter: float = Field(
+        8.0, ge=0,
+        description="Std of each limb part's own position noise, px per sqrt(s) (limbs swing about the "
+        "body); the root (torso) and head get half of it.",
+    )
+    structure_rate: float = Field(
+        2.0, ge=0,
+        description="Rate (1/s) at which a part's offset from its parent relaxes to the preferred offset "
+        "of the pictorial structure: per frame the gap shrinks by 1 - exp(-rate dt).",
+    )
+    velocity_coupling: float = Field(
+        0.5, ge=0, le=1,
+        description="Per frame, a part's velocity relative to its parent's is multiplied by this "
+        "(0: parts move exactly with their parent; 1: independent constant velocity).",
+    )
+
+
+class LikelihoodConfig(_Frozen):
+    """Log-likelihood of one target's configuration: a weighted sum (paper section 3.1) of the parts'
+    fit to the image, the data-association term and the pairwise structure term (:mod:`.likelihood`)."""
+
+    colour_lambda: float = Field(
+        20.0, gt=0,
+        description="Part appearance: log p = -colour_lambda * (1 - rho), rho the Bhattacharyya "
+        "coefficient of the part's box against its reference histogram (Perez et al. 2002).",
+    )
+    colour_floor: float = Field(
+        0.5, ge=0, le=1,
+        description="Robust appearance: rho below this counts as this (log p = -lambda (1 - max(rho, floor))), "
+        "so a hidden part gives a flat likelihood instead of pulling the particles to the least-bad "
+        "pixels; the association term and the motion carry the part through the occlusion.",
+    )
+    w_appearance: float = Field(
+        0.3, ge=0,
+        description="Weight of the parts' appearance terms (set on the synthetic scene: 0.3 gave a lower RMSE "
+        "than 1.0 for every method).",
+    )
+    w_association: float = Field(1.0, ge=0, description="Weight of the parts' data-association (expected-likelihood) terms.")
+    w_structure: float = Field(1.0, ge=0, description="Weight of the pairwise pictorial-structure terms.")
+    structure_sigma: float = Field(
+        0.06, gt=0,
+        description="Pairwise term: log psi = -|offset - preferred offset|^2 / (2 (sigma H)^2), per edge, "
+        "sigma in units of H (set on the synthetic scene).",
+    )
+
+
+class GateConfig(_Frozen):
+    """Validation gates and the measurements inside them (:mod:`.gating`)."""
+
+    gate_size: float = Field(
+        15.0, gt=0,
+        description="Gate radius in pixels (paper section 4.1: 15). Fixed gates (PDA, JPDA) use it "
+        "throughout; the re-estimated gate (ELPDA) starts with R_0 = gate_size^2 / gamma I, keeps the std "
+        "of R_k at most gate_size / sqrt(gamma), and searches up to twice gate_size (the particle spread "
+        "adds to R_k).",
+    )
+    level: Literal["structure", "part"] = Field(
+        "structure",
+        description="Association unit: 'structure' gates and associates the whole pictorial structure, located "
+        "by its root (paper section 3.2); 'part' gates and associates every part on its own.",
+    )
+    adaptive: bool = Field(
+        False,
+        description="Re-estimate the gate from the data every frame: S = particle covariance + R_k with "
+        "R_k from the weighted innovations (ELPDA); False: a fixed circle of radius gate_size.",
+    )
+    p_gate: float = Field(0.95, gt=0, lt=1, description="P_G, probability that the true measurement falls in the gate (sets gamma).")
+    innovation_rate: float = Field(
+        0.3, gt=0, le=1,
+        description="Adaptive gate: R_k = (1 - rate) R_{k-1} + rate (sum_j beta_j nu_j nu_j^T + beta_0 R_max) "
+        "(weighted innovations); the gate can then grow up to twice gate_size.",
+    )
+    min_sigma: float = Field(2.0, gt=0, description="Adaptive gate: floor on the std of R_k, px.")
+    stride: int = Field(2, ge=1, le=16, description="Spacing of the candidate grid searched for measurements, px.")
+    max_measurements: int = Field(6, ge=1, le=16, description="At most this many measurements (the best peaks) per gate.")
+    min_similarity: float = Field(
+        0.1, ge=0, le=1,
+        description="A measurement is a local maximum of the mean colour similarity of the shifted structure with rho >= this.",
+    )
+
+
+class AssociationConfig(_Frozen):
+    """PDA / ELPDA / JPDA association (paper eqs. 9-13; :mod:`.association`)."""
+
+    p_detect: float = Field(0.9, gt=0, le=1, description="P_D, probability that the part is detected.")
+    clutter_density: float = Field(
+        2e-3, gt=0,
+        description="Poisson clutter density lambda, measurements per pixel^2: mu_F(m) = Poisson(m; lambda V).",
+    )
+    measurement_sigma: float = Field(3.0, gt=0, description="Std of a measurement about the part centre, px (R = sigma^2 I).")
+    attribute_lambda: float = Field(
+        12.0, gt=0,
+        description="ELPDA only: the measurement's colour similarity rho is an attribute with density "
+        "lambda e^{lambda (rho - 1)} / (1 - e^{-lambda}) for the target and uniform for clutter; their "
+        "ratio multiplies the target hypotheses (the 'local attribute information' of Marrs et al. 2002).",
+    )
+
+
+class EvolutionConfig(_Frozen):
+    """Genetic moves and population MCMC (paper section 3.1, Algorithms 1-2; :mod:`.genetic`)."""
+
+    ess_threshold_fraction: float = Field(
+        0.5, ge=0, le=1, description="Resample-move when ESS <= fraction * N (Algorithm 1, N_thr1)."
+    )
+    mcmc_iterations: int = Field(2, ge=0, le=50, description="t, population-MCMC sweeps after each resampling (Algorithm 1 (3a)).")
+    crossover_prob: float = Field(
+        0.3, ge=0, le=1,
+        description="rho_c, probability that a particle pair crosses over (per sweep, and in the sampling step).",
+    )
+    mutation_prob_position: float = Field(
+        0.3, ge=0, le=1, description="rho_m of each part-position component (x and y of every part)."
+    )
+    mutation_prob_velocity: float = Field(
+        0.0, ge=0, le=1,
+        description="rho_m of each velocity component; 0: velocities are never mutated (the paper's "
+        "'components that need no stochastic fluctuations').",
+    )
+    mutation_sigma: float = Field(0.03, gt=0, description="Std of a mutation of a part offset, units of H.")
+    exchange_prob: float = Field(
+        0.5, ge=0, le=1,
+        description="Algorithm 2 (3b): probability that a sweep proposes exchanges between two populations "
+        "(targets) rather than crossovers within each.",
+    )
+    prior_floor: float = Field(2.0, gt=0, description="Floor on the std of the Gaussian fit to the predicted population (MCMC target), px or px/s.")
+
+
+class MultiTargetConfig(_Frozen):
+    """One tracker: filter, association and all component settings."""
+
+    filter: Literal["epmcmc", "sir"] = Field(
+        "epmcmc", description="epmcmc: evolving-population MCMC filter; sir: generic particle filter (the JPDA-PF baseline)."
+    )
+    association: Literal["elpda", "pda", "jpda"] = Field(
+        "elpda", description="Data association of the gated measurements (see :mod:`.association`)."
+    )
+    n_parts: Literal[1, 2, 6, 10] = Field(10, description="Pictorial-structure model (paper Fig. 8 levels).")
+    n_particles: int = Field(200, ge=2, le=100_000, description="Particles per target (paper: 500).")
+    init_spread: float = Field(2.0, ge=0, description="Std of the initial particles about the initial part positions, px.")
+    resampling: Literal["systematic", "stratified", "multinomial", "residual"] = Field(
+        "residual", description="Resampling scheme (paper Algorithm 1 (a1): residual)."
+    )
+    histogram: HistogramConfig = Field(default_factory=HistogramConfig)
+    motion: MotionConfig = Field(default_factory=MotionConfig)
+    likelihood: LikelihoodConfig = Field(default_factory=LikelihoodConfig)
+    gate: GateConfig = Field(default_factory=GateConfig)
+    association_model: AssociationConfig = Field(default_factory=AssociationConfig)
+    evolution: EvolutionConfig = Field(default_factory=EvolutionConfig)
+
+
+METHODS = ("epmcmc-elpda", "epmcmc-pda", "jpda-pf")
+"""The paper's proposed method and its two baselines (Table 1)."""
+
+
+def method_config(method: str, **updates) -> MultiTargetConfig:
+    """The config of ``method`` (one of :data:`METHODS`), with top-level field ``updates``.
+
+    epmcmc-elpda: EPMCMC + ELPDA: association probabilities with the measurements' colour attributes,
+    particle weights by the expected likelihood (eq. 13), gate re-estimated every frame; epmcmc-pda:
+    the same filter with plain PDA: kinematic association probabilities, the PDAF's combined
+    measurement, a fixed gate; jpda-pf: a generic particle filter (systematic resampling, no genetic
+    moves) with joint PDA in fixed gates (Jaward et al. 2006).
+    """
+    presets = {
+        "epmcmc-elpda": dict(filter="epmcmc", association="elpda", adaptive=True),
+        "epmcmc-pda": dict(filter="epmcmc", association="pda", adaptive=False),
+        "jpda-pf": dict(filter="sir", association="jpda", adaptive=False, resampling="systematic"),
+    }
+    if method not in presets:
+        raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    p = dict(presets[method])
+    adaptive = p.pop("adaptive")
+    base = MultiTargetConfig(**p)
+    gate = base.gate.model_copy(update={"adaptive": adaptive})
+    if "gate" in updates:
+        gate = updates.pop("gate").model_copy(update={"adaptive": adaptive})
+    return base.model_copy(update={"gate": gate, **updates})

@@ -1,0 +1,137 @@
+"""Validation gates and the measurements inside them.
+
+Association units (``GateConfig.level``): ``structure`` associates the whole pictorial structure
+(paper section 3.2: "with respect to the whole graph representing the target"): a measurement is a
+candidate position z of the root (torso) where the target's predicted configuration, shifted so that
+its root is at z, matches the target's colour histograms; ``part`` gates and associates every part
+on its own. A measurement's attribute is the match, the mean Bhattacharyya coefficient rho over the
+unit's parts. Candidates are the local maxima (3x3) of rho over a grid of shifts around the
+prediction, with rho >= min_similarity, inside the gate; at most ``max_measurements`` of them (the
+highest). All targets' and units' grids go to the :class:`~.appearance.PartEvidence` in one batched
+call.
+
+Gates: fixed (PDA, JPDA): a circle of radius ``gate_size``, area V = pi r^2. Re-estimated (ELPDA):
+the ellipse (z - z^)^T S^{-1} (z - z^) <= gamma, gamma = chi2_2^{-1}(P_G), with S = the weighted
+covariance of the unit's predicted located-part positions + R_k, and R_k re-estimated every frame from the
+innovations (:func:`update_measurement_cov`); V = pi gamma sqrt(det S), capped at the searched
+square.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import maximum_filter
+
+from .appearance import PartEvidence, part_boxes
+from .association import mahalanobis2
+from .config import GateConfig
+
+
+def gate_gamma(p_gate: float) -> float:
+    """gamma with P(chi2_2 <= gamma) = P_G: -2 log(1 - P_G)."""
+    return -2.0 * math.log1p(-p_gate)
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """Gated measurements of every target and association unit (the whole structure, or each part)."""
+
+    z: np.ndarray
+    """(T, Q, M, 2) measured positions of each unit's located part (padding where not valid)."""
+    rho: np.ndarray
+    """(T, Q, M) mean colour similarity of the unit's shifted parts (the measurement's attribute)."""
+    valid: np.ndarray
+    """(T, Q, M) bool."""
+    volume: np.ndarray
+    """(T, Q) gate area V, px^2."""
+    centre: np.ndarray
+    """(T, Q, 2) gate centre z^ (predicted position of the unit's located part)."""
+    s_cov: np.ndarray
+    """(T, Q, 2, 2) innovation covariance S used for gating and the association probabilities."""
+
+
+def units(n_parts: int, level: str) -> tuple[np.ndarray, np.ndarray]:
+    """Association units: (Q, P) bool membership and (Q,) located part of each unit.
+
+    ``structure``: one unit, all parts, located by the root; ``part``: one unit per part."""
+    if level == "structure":
+        return np.ones((1, n_parts), bool), np.zeros(1, np.intp)
+    return np.eye(n_parts, dtype=bool), np.arange(n_parts)
+
+
+def _grid(half: float, stride: int) -> np.ndarray:
+    k = int(math.floor(half / stride))
+    a = np.arange(-k, k + 1) * float(stride)
+    gx, gy = np.meshgrid(a, a)
+    return np.stack([gx, gy], axis=-1)  # (g, g, 2), row = y
+
+
+def measure(parts: np.ndarray, part_cov: np.ndarray, r_cov: np.ndarray, box_size: np.ndarray,
+            references: np.ndarray, evidence: PartEvidence, cfg: GateConfig) -> Measurements:
+    """Gate every target and unit and find the measurements.
+
+    ``parts`` (T, P, 2) predicted part centres, ``part_cov`` (T, P, 2, 2) their covariance over the
+    particles, ``r_cov`` (T, Q, 2, 2) the gates' R, ``box_size`` (T, P, 2) part boxes, ``references``
+    (T, P, B) reference histograms.
+    """
+    t_n, p_n = parts.shape[:2]
+    members, loc = units(p_n, cfg.level)
+    q_n = len(loc)
+    if cfg.adaptive:
+        s_cov = part_cov[:, loc] + r_cov
+        half = 2.0 * cfg.gate_size
+    else:
+        s_cov = np.broadcast_to(cfg.gate_size**2 / gate_gamma(cfg.p_gate) * np.eye(2), (t_n, q_n, 2, 2)).copy()
+        half = cfg.gate_size
+    grid = _grid(half, cfg.stride)
+    g = grid.shape[0]
+    off = grid.reshape(-1, 2)  # (K, 2)
+    k_n = len(off)
+    pq, pp = np.nonzero(members)  # (unit, part) pairs queried
+    pos = parts[:, pp][:, :, None, :] + off  # (T, pairs, K, 2)
+    boxes = part_boxes(pos, np.broadcast_to(box_size[:, pp][:, :, None, :], pos.shape))
+    ref_idx = np.broadcast_to((np.arange(t_n)[:, None] * p_n + pp)[:, :, None], pos.shape[:3])
+    rho = evidence.similarity(boxes.reshape(-1, 4), references.reshape(t_n * p_n, -1), ref_idx.ravel())
+    mix = (pq[None, :] == np.arange(q_n)[:, None]) / members.sum(axis=1, keepdims=True)  # (Q, pairs): mean over a unit's parts
+    rho = np.einsum("qa,tak->tqk", mix, rho.reshape(t_n, len(pp), k_n))  # (T, Q, K)
+    rg = rho.reshape(t_n, q_n, g, g)
+    peaks = (rg >= maximum_filter(rg, size=(1, 1, 3, 3), mode="constant", cval=-1.0)).reshape(t_n, q_n, k_n)
+    gamma = gate_gamma(cfg.p_gate)
+    if cfg.adaptive:
+        inside = mahalanobis2(off, s_cov[:, :, None]) <= gamma
+        volume = np.minimum(math.pi * gamma * np.sqrt(np.linalg.det(s_cov)), (2 * half) ** 2)
+    else:
+        inside = np.broadcast_to(np.sum(off * off, axis=-1) <= cfg.gate_size**2, (t_n, q_n, k_n))
+        volume = np.full((t_n, q_n), math.pi * cfg.gate_size**2)
+    ok = peaks & inside & (rho >= cfg.min_similarity)
+    score = np.where(ok, rho, -np.inf)
+    m = min(cfg.max_measurements, k_n)
+    top = np.argsort(-score, axis=-1, kind="stable")[..., :m]
+    centre = parts[:, loc]
+    return Measurements(
+        z=centre[:, :, None] + off[top], rho=np.take_along_axis(score, top, axis=-1).clip(min=0.0),
+        valid=np.take_along_axis(ok, top, axis=-1), volume=volume, centre=centre, s_cov=s_cov,
+    )  # fmt: skip
+
+
+def update_measurement_cov(r_cov: np.ndarray, meas: Measurements, beta: np.ndarray, rate: float,
+                           min_sigma: float, max_sigma: float) -> np.ndarray:
+    """The gate's R_k re-estimated from this frame's innovations nu_j = z_j - z^ (z^ the prediction):
+
+        R_k = (1 - rate) R_{k-1} + rate (sum_j beta_j nu_j nu_j^T + beta_0 max_sigma^2 I),
+
+    eigenvalues clipped to [min_sigma^2, max_sigma^2]. The innovations are taken against the
+    prediction, not the posterior (which the measurement itself pulls in, so its residuals would
+    shrink R frame after frame); the share beta_0 of "no measurement is the target's" relaxes R back
+    to the widest gate, so that a target that is missed gets a wider gate rather than keeping a
+    narrow one. Shapes: r_cov (..., 2, 2), meas.z (..., M, 2), beta (..., M+1)."""
+    e = meas.z - meas.centre[..., None, :]
+    outer = e[..., :, None] * e[..., None, :]
+    b = np.where(meas.valid, beta[..., 1:], 0.0)
+    emp = np.einsum("...m,...mij->...ij", b, outer) + beta[..., 0, None, None] * max_sigma**2 * np.eye(2)
+    new = (1.0 - rate) * r_cov + rate * emp
+    w, v = np.linalg.eigh(new)
+    return np.einsum("...ij,...j,...kj->...ik", v, np.clip(w, min_sigma**2, max_sigma**2), v)

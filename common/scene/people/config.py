@@ -1,0 +1,52 @@
+"""Knobs of the synthetic surveillance scene of walking people, each documented once, in its ``Field``.
+
+``PeopleSceneConfig()`` is the default: 384x288 at 25 fps (the CAVIAR format of Bhaskar and
+Mihaylova 2011, section 4.1) for 80 frames, three people about 110 px tall walking across the
+floor in both directions so that they cross and occlude each other, six clutter objects in
+clothing-like colours, and a dimming of the light to 70% in the middle of the run.
+"""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class PeopleSceneConfig(BaseModel):
+    """Everything that shapes a people scene except the seed (pass that to ``PeopleScene``)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    width: int = Field(384, ge=128, le=4096, description="Image width in pixels (CAVIAR: 384).")
+    height: int = Field(288, ge=128, le=4096, description="Image height in pixels (CAVIAR: 288).")
+    fps: float = Field(25.0, gt=0, le=1000, description="Frame rate; frame i is captured at i / fps s (CAVIAR: 25).")
+    n_frames: int = Field(80, ge=10, le=100_000, description="Number of frames.")
+    n_people: int = Field(3, ge=1, le=5, description="Number of people (targets) in the scene, 1-5.")
+    person_height_px: float = Field(
+        110.0, ge=40, le=400,
+        description="Nominal standing height of a person in pixels; each person varies it by +-8% (seeded).",
+    )
+    speed_px_s: float = Field(
+        40.0, ge=0, le=400, description="Nominal walking speed in px/s; each person varies it by +-20% (seeded)."
+    )
+    lane_spread_px: float = Field(
+        14.0, ge=0, le=200,
+        description="Feet of different people walk on horizontal lanes within this many pixels of each "
+        "other, so that people walking opposite ways overlap (the nearer one, lower in the image, "
+        "is drawn in front).",
+    )
+    leg_swing_deg: float = Field(25.0, ge=0, le=60, description="Amplitude of the thigh swing while walking.")
+    arm_swing_deg: float = Field(22.0, ge=0, le=60, description="Amplitude of the upper-arm swing (opposite to the legs).")
+    n_clutter: int = Field(
+        6, ge=0, le=100,
+        description="Static background objects whose colours are the people's clothing colours with a "
+        "small hue shift: measurements that look like a part but are clutter.",
+    )
+    illumination_low: float = Field(
+        0.7, gt=0.05, le=1.5,
+        description="Light level (gain on every pixel) after the illumination change; 1.0 disables it.",
+    )
+    illumination_change: tuple[float, float] = Field(
+        (0.45, 0.6),
+        description="Fractions of the run over which the light ramps linearly from 1.0 to illumination_low.",
+    )
+    noise_sigma: float = Field(3.0, ge=0, le=64, description="Std of the per-pixel sensor noise, grey levels (0: none).")

@@ -1,0 +1,68 @@
+"""eval-multi and track-multi on small inputs; bad box files give clear errors."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from common.cli import main
+from common.scene.people import PeopleScene, PeopleSceneConfig
+
+
+def test_eval_multi_json_has_the_three_methods(tmp_path, capsys):
+    rc = main(["eval-multi", "--json", "--seeds", "1", "--people", "2", "--frames", "12", "--particles", "30",
+               "--sweeps", "none", "--workers", "1", "--out-dir", str(tmp_path)])
+    assert rc == 0
+    report = json.loads(capsys.readouterr().out)
+    for m in ("epmcmc-elpda", "epmcmc-pda", "jpda-pf"):
+        assert report["methods"][m]["rmse"] > 0 and report["methods"][m]["ms_per_frame"] > 0
+        assert 0 <= report["methods"][m]["idf1"] <= 1
+    assert 0.0 <= report["elpda_beats_pda"] <= 1.0
+    assert (tmp_path / "eval-multi.json").exists() and (tmp_path / "error_per_frame.png").exists()
+
+
+@pytest.fixture
+def frames_folder(tmp_path):
+    scene = PeopleScene(PeopleSceneConfig(n_people=2, n_frames=10), seed=3)
+    folder = tmp_path / "clip"
+    folder.mkdir()
+    for i in range(6):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), cv2.cvtColor(scene.frame(i).image, cv2.COLOR_RGB2BGR))
+    boxes = tmp_path / "boxes.txt"
+    boxes.write_text("# x,y,w,h\n" + "\n".join(",".join(f"{v:.1f}" for v in b) for b in scene.frame(0).truth.boxes))
+    return folder, boxes
+
+
+def test_track_multi_on_a_folder_writes_every_part(frames_folder, tmp_path):
+    folder, boxes = frames_folder
+    out = tmp_path / "t.csv"
+    rc = main(["track-multi", str(folder), "--init-file", str(boxes), "--parts", "6", "--particles", "20",
+               "--out", str(out), "--no-progress"])
+    assert rc == 0
+    rows = out.read_text().splitlines()
+    assert rows[0] == "frame,target,part,x,y"
+    assert len(rows) == 1 + 6 * 2 * 6
+
+
+@pytest.mark.parametrize("content, message", [
+    ("10,20,30\n", "expected four numbers"),
+    ("", "no boxes"),
+    ("370,100,40,120\n", "not inside the 384x288 frame"),
+    ("10,10,-5,50\n", "must be positive"),
+])
+def test_bad_box_files_are_explained(frames_folder, tmp_path, capsys, content, message):
+    folder, _ = frames_folder
+    bad = tmp_path / "bad.txt"
+    bad.write_text(content)
+    assert main(["track-multi", str(folder), "--init-file", str(bad), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "track-multi: error" in err
+
+
+def test_missing_boxes_are_explained(frames_folder, capsys):
+    folder, _ = frames_folder
+    assert main(["track-multi", str(folder), "--no-progress"]) == 2
+    assert "--init-file" in capsys.readouterr().err
+    assert main(["track-multi", str(folder), "--init-file", str(folder / "nope.txt"), "--no-progress"]) == 2
+    assert "no such file" in capsys.readouterr().err
