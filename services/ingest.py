@@ -111,6 +111,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         wall0 = None  # the real-time clock starts at the first frame
         last_ns = start_ns
         index = -1
+        last_status = time.monotonic()
         for frame in frames_to_publish(source, cfg.pace, c):
             if stopper.stopped:
                 break
@@ -145,6 +146,9 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)
             c.add("published")
+            if time.monotonic() - last_status > 1.0:
+                pub_status.put(c.status().SerializeToString(), attachment=att)
+                last_status = time.monotonic()
         eos = FrameInfo(index=index + 1, end_of_stream=True, source=source.name, total_frames=total,
                         capture_ns=last_ns)
         pub_info.put(eos.SerializeToString(), attachment=ns_attachment(last_ns))

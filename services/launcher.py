@@ -198,9 +198,12 @@ class Pipeline:
         errors: dict[int, float] = {}
         t0 = time.monotonic()
         first_t = last_t = None
+        infos_seen = 0
         from common.msgs import ServiceStatus
 
         self.statuses: dict[str, ServiceStatus] = {}
+        self.status_log: list[tuple[float, int, ServiceStatus]] = []
+        """(arrival time, frames seen so far, status) of every service status, for steady-state figures"""
         self.latencies: list[float] = []
         self.skipped = 0
         try:
@@ -217,6 +220,7 @@ class Pipeline:
                 inbox.wait(0.2)
                 while (s := inbox.pop("info")) is not None:
                     info = FrameInfo.FromString(payload_bytes(s))
+                    infos_seen += not info.end_of_stream
                     if info.total_frames and total is None:
                         total = info.total_frames
                         bar.total = total
@@ -227,6 +231,7 @@ class Pipeline:
                 while (s := inbox.pop("status")) is not None:
                     st = ServiceStatus.FromString(payload_bytes(s))
                     self.statuses[st.service] = st
+                    self.status_log.append((time.monotonic(), infos_seen, st))
                 while (s := inbox.pop("estimate")) is not None:
                     e = Estimate.FromString(payload_bytes(s))
                     self.latencies.append(e.latency_ms)
@@ -256,6 +261,7 @@ class Pipeline:
             while (s := inbox.pop("status")) is not None:
                 st = ServiceStatus.FromString(payload_bytes(s))
                 self.statuses[st.service] = st
+                self.status_log.append((time.monotonic(), infos_seen, st))
             for s in subs:
                 s.undeclare()
             self.close()

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common.msgs import RunConfig, message_class
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, attachment_ns, open_session, payload_bytes
+from services.bus import BusConfig, Counters, Inbox, Stopper, attachment_ns, open_session, payload_bytes, publisher
 
 log = logging.getLogger("polartrack.recorder")
 
@@ -103,6 +103,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
     prefix = bus.key("")
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("**"), inbox.callback("all"))
+        pub_status = publisher(session, bus.key("status/recorder"))
         token = session.liveliness().declare_token(bus.key("alive/recorder"))
         log.info("recording %s** to %s", prefix, cfg.out)
         last_flush = time.monotonic()
@@ -128,6 +129,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                     write_one(s)
             if time.monotonic() - last_flush > 1.0:
                 sink.flush()
+                pub_status.put(c.status().SerializeToString())
                 last_flush = time.monotonic()
         # a short grace period for messages in flight, then close the file properly
         deadline = time.monotonic() + 0.3
@@ -135,6 +137,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
             while (s := inbox.pop("all")) is not None:
                 write_one(s)
             time.sleep(0.02)
+        pub_status.put(c.status(final=True).SerializeToString())
         token.undeclare()
         sub.undeclare()
     sink.metadata("recorder", {"messages": sum(sink.counts.values()), **{f"count:{k}": v for k, v in sink.counts.items()}})

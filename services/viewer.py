@@ -70,14 +70,15 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
             log.info("logging polartrack/%s/** to %s", bus.stream, cfg.out)
             last_msg = time.monotonic()
             last_ns = None
+            last_status = time.monotonic()
             while not stopper.stopped:
                 got = 0
-                for _topic, burst, sub in subs:
+                for sub_topic, burst, sub in subs:
                     for _ in range(burst):
                         sample = sub.try_recv()
                         if sample is None:
                             break
-                        got += 1
+                        got += sub_topic != "status/*"  # the services' periodic statuses are not activity
                         c.add("received")
                         topic = bus.suffix(str(sample.key_expr))
                         ns = attachment_ns(sample)
@@ -91,6 +92,9 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
                             eos_at = time.monotonic()
                             log.info("end of stream; stopping after %.1f s of quiet", cfg.quiet_s)
                 now = time.monotonic()
+                if now - last_status > 1.0:
+                    pub_status.put(c.status().SerializeToString())
+                    last_status = now
                 if got:
                     last_msg = now
                 elif eos_at is not None and now - last_msg >= cfg.quiet_s:
