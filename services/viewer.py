@@ -1,8 +1,9 @@
 """Viewer service: logs a run on the bus to a Rerun recording (.rrd), optionally to a live viewer.
 
 Subscribes to the frame images and infos, estimates, particle clouds, template, run config and
-service statuses of ``polartrack/<stream>/...`` (bounded FIFO channels: the Zenoh callbacks do no
-work), and logs them from its main thread with :class:`services.rerun_log.RunLogger`. Stops on
+service statuses of ``polartrack/<stream>/...`` (bounded channels: the Zenoh callbacks do no
+work; images in a ring of the newest eight, so a viewer short of CPU logs fewer images and never
+slows the pipeline), and logs them from its main thread with :class:`services.rerun_log.RunLogger`. Stops on
 SIGINT/SIGTERM, or once an end-of-stream frame info has arrived and the bus has been quiet for
 ``quiet_s``; then flushes the file and exits 0. Malformed messages are counted and skipped.
 Run: ``python -m services.viewer --help``.
@@ -25,13 +26,22 @@ log = logging.getLogger("polartrack.viewer")
 # topic -> (FIFO capacity, messages taken per pass). Infos first: they carry the frame times.
 SUBSCRIPTIONS = {
     "frame/info": (1024, 256),
-    "frame/image": (16, 2),
+    "frame/image": (8, 2),
     "track/estimate": (1024, 256),
     "track/particles": (64, 16),
     "template": (16, 16),
     "run/config": (16, 16),
     "status/*": (256, 64),
 }
+
+
+def handler(topic: str, capacity: int):
+    """A bounded channel for a subscription. Frame images go to a ring that drops the oldest: a
+    viewer that cannot encode every frame logs the newest ones, and never blocks the bus (a full
+    FIFO channel blocks Zenoh's delivery, and with it, through the router, the publishers)."""
+    if topic == "frame/image":
+        return zenoh.handlers.RingChannel(capacity)
+    return zenoh.handlers.FifoChannel(capacity)
 
 
 class ViewerSettings(BaseModel):
@@ -63,7 +73,7 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
     eos_at: float | None = None
     try:
         with session:
-            subs = [(topic, burst, session.declare_subscriber(bus.key(topic), zenoh.handlers.FifoChannel(cap)))
+            subs = [(topic, burst, session.declare_subscriber(bus.key(topic), handler(topic, cap)))
                     for topic, (cap, burst) in SUBSCRIPTIONS.items()]
             pub_status = publisher(session, bus.key("status/viewer"))
             token = session.liveliness().declare_token(bus.key("alive/viewer"))
