@@ -27,6 +27,8 @@ def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", metavar="ENDPOINT", help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--log-level", default="INFO", help="logging level")
+    p.add_argument("--threads", type=int, default=1, metavar="N",
+                   help="OpenCV threads of this process (0: its default, a thread per core)")
 
 
 def fail(service: str, message: str) -> None:
@@ -35,7 +37,11 @@ def fail(service: str, message: str) -> None:
 
 
 def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]) -> tuple[BusConfig, M]:
-    """Merge the TOML file (if any) and the flags that were given, then validate both models."""
+    """Merge the TOML file (if any) and the flags that were given, then validate both models.
+    Also limits the process's compute threads (``--threads``, see :mod:`services.threads`)."""
+    from services.threads import limit_threads
+
+    limit_threads(getattr(args, "threads", 0) or 0)
     data: dict = {}
     if args.config:
         try:
