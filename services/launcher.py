@@ -99,7 +99,8 @@ class Pipeline:
         if service == "recorder":
             return base + ["--out", self.mcap]
         if service == "viewer":
-            return base + ["--out", self.rrd]
+            # lower priority: its work is for inspection, and it drops images rather than fall behind
+            return base + ["--out", self.rrd, "--nice", "5"]
         if service == "tracker":
             cfg = Path(self.tmp.name) / "tracker.json"
             cfg.write_text(json.dumps({"init_box": list(self.init_box), "settings": self.settings.model_dump(mode="json"),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tomllib
 from typing import TypeVar
@@ -29,6 +30,8 @@ def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-level", default="INFO", help="logging level")
     p.add_argument("--threads", type=int, default=1, metavar="N",
                    help="OpenCV threads of this process (0: its default, a thread per core)")
+    p.add_argument("--nice", type=int, default=0, metavar="N",
+                   help="lower this process's scheduling priority by N (the launcher runs the viewer at 5)")
 
 
 def fail(service: str, message: str) -> None:
@@ -38,10 +41,13 @@ def fail(service: str, message: str) -> None:
 
 def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]) -> tuple[BusConfig, M]:
     """Merge the TOML file (if any) and the flags that were given, then validate both models.
-    Also limits the process's compute threads (``--threads``, see :mod:`services.threads`)."""
+    Also limits the process's OpenCV threads (``--threads``, see :mod:`services.threads`) and
+    lowers its priority (``--nice``)."""
     from services.threads import limit_threads
 
     limit_threads(getattr(args, "threads", 0) or 0)
+    if getattr(args, "nice", 0) > 0:
+        os.nice(args.nice)
     data: dict = {}
     if args.config:
         try:
