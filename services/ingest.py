@@ -18,7 +18,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.msgs import Estimate, FrameInfo, Truth, image_to_msg
+from common.msgs import Estimate, FrameInfo, Truth
+from common.msgs.image_wire import encode_image
 from common.sources import Frame, SourceError, open_source
 from services import options
 from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
@@ -142,7 +143,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             last_ns = capture_ns
             att = ns_attachment(capture_ns)
             true_centre = source.true_centre(frame.index) if hasattr(source, "true_centre") else None
-            pub_image.put(image_to_msg(frame.image, capture_ns, str(frame.index)).SerializeToString(), attachment=att)
+            pub_image.put(encode_image(frame.image, capture_ns, str(frame.index)), attachment=att)
             pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)
             c.add("published")
