@@ -206,6 +206,7 @@ class Pipeline:
         self.status_log: list[tuple[float, int, ServiceStatus]] = []
         """(arrival time, frames seen so far, status) of every service status, for steady-state figures"""
         self.latencies: list[float] = []
+        self.step_ms: list[float] = []
         self.skipped = 0
         try:
             subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate")),
@@ -236,6 +237,7 @@ class Pipeline:
                 while (s := inbox.pop("estimate")) is not None:
                     e = Estimate.FromString(payload_bytes(s))
                     self.latencies.append(e.latency_ms)
+                    self.step_ms.append(e.step_ms)
                     self.skipped = max(self.skipped, e.frames_skipped)
                     now = time.monotonic()
                     first_t = first_t or now

@@ -165,6 +165,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
             statuses = {k: v for k, v in pipe.statuses.items()}
             steady = steady_cpu(pipe.status_log)
             lat = np.asarray(pipe.latencies, float)
+            step = np.asarray(pipe.step_ms, float)
             skipped = pipe.skipped
         rec = read_recording(result.mcap)
         recorded_images = len(rec.messages.get("frame/image", []))
@@ -175,6 +176,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
         "fps": round(result.fps, 2), "estimates": result.estimates,
         "latency_ms_p50": round(float(np.percentile(lat, 50)), 1) if lat.size else None,
         "latency_ms_p99": round(float(np.percentile(lat, 99)), 1) if lat.size else None,
+        "tracker_step_ms_p50": round(float(np.percentile(step, 50)), 1) if step.size else None,
         "frames_dropped_by_source": int(statuses["ingest"].dropped) if "ingest" in statuses else None,
         "frames_dropped_by_tracker": int(skipped),
         "frames_missing_from_recording": int(published - recorded_images),
