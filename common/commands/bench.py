@@ -142,7 +142,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
                      pace: str = "realtime") -> dict:
     """The live pipeline: synthetic frames published in real time (30 fps) for ``seconds``
     (``pace="consumer"``: every frame, as fast as the tracker goes). CPU per service is its
-    process CPU time over the run; ``router`` is this process, which hosts the Zenoh router."""
+    process CPU time over the run; ``launcher`` is this process (watching the estimates)."""
     import tempfile
 
     import psutil
@@ -161,7 +161,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
                       viewer=viewer) as pipe:
             cpu0 = sum(psutil.Process().cpu_times()[:2])
             result = pipe.run(progress=False, timeout=seconds * 4 + 120)
-            router_s = sum(psutil.Process().cpu_times()[:2]) - cpu0
+            launcher_s = sum(psutil.Process().cpu_times()[:2]) - cpu0
             statuses = {k: v for k, v in pipe.statuses.items()}
             steady = steady_cpu(pipe.status_log)
             lat = np.asarray(pipe.latencies, float)
@@ -170,7 +170,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
         rec = read_recording(result.mcap)
         recorded_images = len(rec.messages.get("frame/image", []))
     published = statuses.get("ingest").published if "ingest" in statuses else frames
-    cpu_s = {k: v.cpu_s for k, v in sorted(statuses.items())} | {"router": router_s}
+    cpu_s = {k: v.cpu_s for k, v in sorted(statuses.items())} | {"launcher": launcher_s}
     return {
         "frames": frames, "source": spec, "particles": particles, "viewer": viewer, "pace": pace,
         "fps": round(result.fps, 2), "estimates": result.estimates,
