@@ -33,15 +33,27 @@ class BusConfig(BaseModel):
     listen: list[str] = Field(default_factory=list, description="Zenoh endpoints to listen on, e.g. tcp/127.0.0.1:7447")
     connect: list[str] = Field(default_factory=list, description="Zenoh endpoints to connect to")
     multicast_scouting: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
-    shared_memory: bool = Field(False, description="Zenoh shared-memory transport. Off by default: with it on, "
-                                "zenoh 1.10 leaves segment files in /dev/shm when a process is killed, and frames "
-                                "here travel over loopback TCP fast enough (see polartrack bench --pipeline)")
+    shared_memory: bool = Field(False, description="Zenoh shared memory for the large messages (the frame images). "
+                                "Off by default: zenoh 1.10 leaves its segment files in /dev/shm when a process "
+                                "exits, for the next one to clean; the launcher turns it on for the processes it "
+                                "starts and removes their segments (services/shm_files.py)")
+    shm_pool_mb: int = Field(96, ge=8, le=4096, description="Shared memory: the pool a publisher allocates its "
+                             "messages in (MiB). Receivers release a message's buffer once decoded; when the pool "
+                             "is full, Zenoh falls back to copies")
+    shm_threshold_kb: int = Field(1024, ge=4, description="Shared memory: messages at least this large (KiB) go "
+                                  "through it; smaller ones (queries, replies, estimates) through the socket, "
+                                  "which is quicker for them (with every message through shared memory, bench --pipeline "
+                                  "made 3.7 fps; with the frames only, 11)")
 
     def zenoh_config(self) -> zenoh.Config:
         c = zenoh.Config()
         c.insert_json5("mode", json.dumps(self.mode))
         c.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         c.insert_json5("transport/shared_memory/enabled", json.dumps(self.shared_memory))
+        if self.shared_memory:
+            c.insert_json5("transport/shared_memory/transport_optimization", json.dumps({
+                "enabled": True, "pool_size": self.shm_pool_mb << 20,
+                "message_size_threshold": self.shm_threshold_kb << 10}))
         c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         # peers start in any order: retry connections quickly so the mesh forms in well under a second

@@ -9,16 +9,16 @@ from collections import OrderedDict
 
 import numpy as np
 
-from common.msgs import RawImage, msg_to_image
+from common.msgs import image_wire
 from services.bus import Inbox, attachment_ns, payload_bytes
 
 
 def decode_image(sample) -> tuple[int, np.ndarray, int]:
     """(frame index, uint8 RGB image, capture ns) of a ``frame/image`` sample; ValueError (or a
-    protobuf DecodeError) when malformed."""
-    msg = RawImage.FromString(payload_bytes(sample))
+    protobuf DecodeError) when malformed. The image is a read-only view into the payload's bytes."""
+    msg, image = image_wire.decode_image(payload_bytes(sample))
     index = int(msg.frame_id)
-    return index, msg_to_image(msg), attachment_ns(sample) or msg.timestamp.ToNanoseconds()
+    return index, image, attachment_ns(sample) or msg.timestamp.ToNanoseconds()
 
 
 class FrameImages:

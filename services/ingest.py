@@ -18,7 +18,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.msgs import Estimate, FrameInfo, Truth, image_to_msg
+from common.msgs import Estimate, FrameInfo, Truth
+from common.msgs.image_wire import encode_image
 from common.sources import Frame, SourceError, open_source
 from services import options
 from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
@@ -111,6 +112,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         wall0 = None  # the real-time clock starts at the first frame
         last_ns = start_ns
         index = -1
+        last_status = time.monotonic()
         for frame in frames_to_publish(source, cfg.pace, c):
             if stopper.stopped:
                 break
@@ -141,10 +143,13 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             last_ns = capture_ns
             att = ns_attachment(capture_ns)
             true_centre = source.true_centre(frame.index) if hasattr(source, "true_centre") else None
-            pub_image.put(image_to_msg(frame.image, capture_ns, str(frame.index)).SerializeToString(), attachment=att)
+            pub_image.put(encode_image(frame.image, capture_ns, str(frame.index)), attachment=att)
             pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)
             c.add("published")
+            if time.monotonic() - last_status > 1.0:
+                pub_status.put(c.status().SerializeToString(), attachment=att)
+                last_status = time.monotonic()
         eos = FrameInfo(index=index + 1, end_of_stream=True, source=source.name, total_frames=total,
                         capture_ns=last_ns)
         pub_info.put(eos.SerializeToString(), attachment=ns_attachment(last_ns))

@@ -1,10 +1,13 @@
 """Starts the services as separate processes on a private loopback Zenoh network.
 
-The launcher hosts a Zenoh router on a free loopback port and every service joins it as a
-client (explicit endpoints, no scouting, nothing leaves 127.0.0.1): a star that forms as soon
-as each process starts, whatever the start order. It watches the estimates for progress,
-shuts everything down when the source ends or on Ctrl-C, and leaves
-``recordings/<time>-<source>.mcap`` (and ``.rrd`` with the viewer).
+The launcher starts a Zenoh router (``services.router``) on a free loopback port and every
+service joins it as a client (explicit endpoints, no scouting, nothing leaves 127.0.0.1): a star
+that forms as soon as each process starts, whatever the start order. The frame images travel
+through Zenoh shared memory (the router and the services; the launcher's own session reads only
+small messages and stays out of it); when the run ends, the segment files the processes left in
+/dev/shm are removed. It watches the estimates for progress, shuts everything down when the
+source ends or on Ctrl-C, and leaves ``recordings/<time>-<source>.mcap`` (and ``.rrd`` with the
+viewer).
 """
 
 from __future__ import annotations
@@ -37,6 +40,22 @@ def free_ports(n: int) -> list[int]:
     for s in socks:
         s.close()
     return ports
+
+
+def wait_for_port(port: int, proc: subprocess.Popen, timeout: float, log=lambda: "") -> None:
+    """Wait until something listens on loopback ``port``; RuntimeError if ``proc`` exits first."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+            return
+        except OSError:
+            pass
+        if proc.poll() is not None:
+            raise RuntimeError(f"the router exited ({proc.returncode}): {log()[-2000:]}")
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"nothing listens on 127.0.0.1:{port} after {timeout:.0f} s")
+        time.sleep(0.05)
 
 
 def client_args(hub_port: int) -> list[str]:
@@ -74,7 +93,7 @@ class Pipeline:
 
     def __init__(self, source: str, init_box, settings: TrackerSettings, out_dir: str | Path = "recordings",
                  frames: int | None = None, pace: str = "consumer", viewer: bool = True, stream: str | None = None,
-                 name: str | None = None, log_dir: str | Path | None = None):
+                 name: str | None = None, log_dir: str | Path | None = None, shared_memory: bool = True):
         self.source, self.init_box, self.settings = source, tuple(float(v) for v in init_box), settings
         self.frames, self.pace, self.viewer = frames, pace, viewer
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -87,6 +106,7 @@ class Pipeline:
         self.stream = stream or f"run{os.getpid()}x{int(time.time() * 1000) % 100000}"
         self.services = [s for s in SERVICES if viewer or s != "viewer"]
         self.hub_port = free_ports(1)[0]
+        self.shared_memory = shared_memory
         self.session = None
         self.tmp = tempfile.TemporaryDirectory(prefix="polartrack-")
         self.log_dir = Path(log_dir) if log_dir else Path(self.tmp.name)
@@ -95,11 +115,16 @@ class Pipeline:
 
     # -- processes ------------------------------------------------------------------------
     def command(self, service: str) -> list[str]:
-        base = [sys.executable, "-m", f"services.{service}", "--stream", self.stream] + client_args(self.hub_port)
+        base = [sys.executable, "-m", f"services.{service}", "--stream", self.stream]
+        base += ["--shared-memory"] if self.shared_memory else []
+        if service == "router":
+            return base + ["--mode", "router", "--listen", f"tcp/127.0.0.1:{self.hub_port}"]
+        base += client_args(self.hub_port)
         if service == "recorder":
-            return base + ["--out", self.mcap]
+            return base + ["--out", self.mcap] + (["--compression", "none"] if self.incompressible() else [])
         if service == "viewer":
-            return base + ["--out", self.rrd]
+            # lower priority: its work is for inspection, and it drops images rather than fall behind
+            return base + ["--out", self.rrd, "--nice", "5"]
         if service == "tracker":
             cfg = Path(self.tmp.name) / "tracker.json"
             cfg.write_text(json.dumps({"init_box": list(self.init_box), "settings": self.settings.model_dump(mode="json"),
@@ -115,6 +140,12 @@ class Pipeline:
                                        "wait_for": waits, "run_config": json.dumps(run_config)}))
             return base + ["--config", str(cfg)]
         return base
+
+    def incompressible(self) -> bool:
+        """The synthetic scene's frames carry per-pixel sensor noise: LZ4 chunks of them are 0.0%
+        smaller, and compressing them was a third of the recorder's CPU in bench --pipeline.
+        (Frames of real video keep LZ4: about half the size for a UAV123 frame.)"""
+        return self.source.split(":", 1)[0] == "synthetic"
 
     def start(self, service: str) -> subprocess.Popen:
         log = open(self.log_dir / f"{service}.log", "ab")
@@ -151,21 +182,34 @@ class Pipeline:
         return codes
 
     def close(self) -> dict[str, int | None]:
+        """Stop the services, this process's session and the router; then remove the shared-memory
+        segments they left (all of them have exited: nobody holds them any more)."""
         codes = self.close_services()
-        for log in self.logs.values():
-            log.close()
-        self.logs = {}
         if self.session is not None:
             self.session.close()
             self.session = None
+        self.stop("router")
+        for log in self.logs.values():
+            log.close()
+        self.logs = {}
+        if self.shared_memory:
+            from services.shm_files import remove_orphaned_segments
+
+            remove_orphaned_segments()
         return codes
 
     def open(self) -> None:
-        """Host the router the services join."""
-        from services.bus import open_session
+        """Start the router the services join, and join it (without shared memory: this process
+        reads only small messages, and must not hold the services' segments)."""
+        from services.bus import BusConfig, open_session
 
         if self.session is None:
-            self.session = open_session(router_config(self.hub_port, self.stream))
+            router = self.procs.get("router")
+            if router is None or router.poll() is not None:
+                self.start("router")
+            wait_for_port(self.hub_port, self.procs["router"], timeout=60.0, log=lambda: self.log_text("router"))
+            self.session = open_session(BusConfig(stream=self.stream, mode="client",
+                                                  connect=[f"tcp/127.0.0.1:{self.hub_port}"]))
 
     def __enter__(self) -> "Pipeline":
         self.open()
@@ -198,10 +242,14 @@ class Pipeline:
         errors: dict[int, float] = {}
         t0 = time.monotonic()
         first_t = last_t = None
+        infos_seen = 0
         from common.msgs import ServiceStatus
 
         self.statuses: dict[str, ServiceStatus] = {}
+        self.status_log: list[tuple[float, int, ServiceStatus]] = []
+        """(arrival time, frames seen so far, status) of every service status, for steady-state figures"""
         self.latencies: list[float] = []
+        self.step_ms: list[float] = []
         self.skipped = 0
         try:
             subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate")),
@@ -217,6 +265,7 @@ class Pipeline:
                 inbox.wait(0.2)
                 while (s := inbox.pop("info")) is not None:
                     info = FrameInfo.FromString(payload_bytes(s))
+                    infos_seen += not info.end_of_stream
                     if info.total_frames and total is None:
                         total = info.total_frames
                         bar.total = total
@@ -227,9 +276,11 @@ class Pipeline:
                 while (s := inbox.pop("status")) is not None:
                     st = ServiceStatus.FromString(payload_bytes(s))
                     self.statuses[st.service] = st
+                    self.status_log.append((time.monotonic(), infos_seen, st))
                 while (s := inbox.pop("estimate")) is not None:
                     e = Estimate.FromString(payload_bytes(s))
                     self.latencies.append(e.latency_ms)
+                    self.step_ms.append(e.step_ms)
                     self.skipped = max(self.skipped, e.frames_skipped)
                     now = time.monotonic()
                     first_t = first_t or now
@@ -256,6 +307,7 @@ class Pipeline:
             while (s := inbox.pop("status")) is not None:
                 st = ServiceStatus.FromString(payload_bytes(s))
                 self.statuses[st.service] = st
+                self.status_log.append((time.monotonic(), infos_seen, st))
             for s in subs:
                 s.undeclare()
             self.close()

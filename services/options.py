@@ -1,6 +1,6 @@
 """Flags and TOML config of a service, validated with clear one-line messages.
 
-Every service takes the bus flags (``--stream --mode --listen --connect``), its own flags, and an
+Every service takes the bus flags (``--stream --mode --listen --connect --shared-memory``), its own flags, and an
 optional ``--config FILE.toml`` whose keys are the same names (flags given on the command line
 win). Errors exit with status 2 and say which key is wrong and why.
 """
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tomllib
 from typing import TypeVar
@@ -26,7 +27,13 @@ def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=["peer", "client", "router"], help="Zenoh mode")
     p.add_argument("--listen", action="append", metavar="ENDPOINT", help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="Zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--shared-memory", dest="shared_memory", action="store_const", const=True,
+                   help="Zenoh shared memory for the frame images (the launcher's processes use it)")
     p.add_argument("--log-level", default="INFO", help="logging level")
+    p.add_argument("--threads", type=int, default=1, metavar="N",
+                   help="OpenCV threads of this process (0: its default, a thread per core)")
+    p.add_argument("--nice", type=int, default=0, metavar="N",
+                   help="lower this process's scheduling priority by N (the launcher runs the viewer at 5)")
 
 
 def fail(service: str, message: str) -> None:
@@ -35,7 +42,14 @@ def fail(service: str, message: str) -> None:
 
 
 def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]) -> tuple[BusConfig, M]:
-    """Merge the TOML file (if any) and the flags that were given, then validate both models."""
+    """Merge the TOML file (if any) and the flags that were given, then validate both models.
+    Also limits the process's OpenCV threads (``--threads``, see :mod:`services.threads`) and
+    lowers its priority (``--nice``)."""
+    from services.threads import limit_threads
+
+    limit_threads(getattr(args, "threads", 0) or 0)
+    if getattr(args, "nice", 0) > 0:
+        os.nice(args.nice)
     data: dict = {}
     if args.config:
         try:
@@ -48,7 +62,7 @@ def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]
         if not isinstance(data, dict):
             fail(service, f"--config {args.config}: expected a table of keys")
     bus_data = dict(data.pop("bus", {}))
-    for k in ("stream", "mode", "listen", "connect"):
+    for k in ("stream", "mode", "listen", "connect", "shared_memory"):
         v = getattr(args, k, None)
         if v is not None:
             bus_data[k] = v

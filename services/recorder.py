@@ -4,8 +4,8 @@ Subscribes to ``polartrack/<stream>/**`` and writes each message on a channel na
 (``frame/image``, ``track/estimate``, ...), protobuf-encoded with its schema, log time = the
 frame's capture time (from the message attachment), publish time = when it was received.
 Messages of unknown topics are kept too (schemaless). The run configuration is written as MCAP
-metadata. Chunks are LZ4-compressed (zstd is too slow for raw video here) and flushed as they
-fill, so a recorder killed with SIGKILL leaves a file readable up to its last chunk.
+metadata. Chunks are LZ4-compressed (zstd is too slow for raw video here; the launcher asks for
+none on the synthetic scene, whose noisy frames LZ4 cannot shrink) and flushed as they fill, so a recorder killed with SIGKILL leaves a file readable up to its last chunk.
 Run: ``python -m services.recorder --help``.
 """
 
@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common.msgs import RunConfig, message_class
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, attachment_ns, open_session, payload_bytes
+from services.bus import BusConfig, Counters, Inbox, Stopper, attachment_ns, open_session, payload_bytes, publisher
 
 log = logging.getLogger("polartrack.recorder")
 
@@ -103,6 +103,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
     prefix = bus.key("")
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("**"), inbox.callback("all"))
+        pub_status = publisher(session, bus.key("status/recorder"))
         token = session.liveliness().declare_token(bus.key("alive/recorder"))
         log.info("recording %s** to %s", prefix, cfg.out)
         last_flush = time.monotonic()
@@ -128,6 +129,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                     write_one(s)
             if time.monotonic() - last_flush > 1.0:
                 sink.flush()
+                pub_status.put(c.status().SerializeToString())
                 last_flush = time.monotonic()
         # a short grace period for messages in flight, then close the file properly
         deadline = time.monotonic() + 0.3
@@ -135,6 +137,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
             while (s := inbox.pop("all")) is not None:
                 write_one(s)
             time.sleep(0.02)
+        pub_status.put(c.status(final=True).SerializeToString())
         token.undeclare()
         sub.undeclare()
     sink.metadata("recorder", {"messages": sum(sink.counts.values()), **{f"count:{k}": v for k, v in sink.counts.items()}})

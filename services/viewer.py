@@ -1,9 +1,12 @@
 """Viewer service: logs a run on the bus to a Rerun recording (.rrd), optionally to a live viewer.
 
 Subscribes to the frame images and infos, estimates, particle clouds, template, run config and
-service statuses of ``polartrack/<stream>/...`` (bounded FIFO channels: the Zenoh callbacks do no
-work), and logs them from its main thread with :class:`services.rerun_log.RunLogger`. Stops on
-SIGINT/SIGTERM, or once an end-of-stream frame info has arrived and the bus has been quiet for
+service statuses of ``polartrack/<stream>/...`` (bounded channels: the Zenoh callbacks do no
+work; images in a ring of the newest eight, so a viewer short of CPU logs fewer images and never
+slows the pipeline), and logs them from its main thread with :class:`services.rerun_log.RunLogger`,
+frame images at most ``max_image_hz`` per second of capture time (decoding and JPEG-encoding
+every 1280x720 frame at 30 fps was most of the viewer's CPU; the rest is logged for every
+frame, and ``polartrack view`` converts a recording with every image). Stops on SIGINT/SIGTERM, or once an end-of-stream frame info has arrived and the bus has been quiet for
 ``quiet_s``; then flushes the file and exits 0. Malformed messages are counted and skipped.
 Run: ``python -m services.viewer --help``.
 """
@@ -25,13 +28,22 @@ log = logging.getLogger("polartrack.viewer")
 # topic -> (FIFO capacity, messages taken per pass). Infos first: they carry the frame times.
 SUBSCRIPTIONS = {
     "frame/info": (1024, 256),
-    "frame/image": (16, 2),
+    "frame/image": (8, 2),
     "track/estimate": (1024, 256),
     "track/particles": (64, 16),
     "template": (16, 16),
     "run/config": (16, 16),
     "status/*": (256, 64),
 }
+
+
+def handler(topic: str, capacity: int):
+    """A bounded channel for a subscription. Frame images go to a ring that drops the oldest: a
+    viewer that cannot encode every frame logs the newest ones, and never blocks the bus (a full
+    FIFO channel blocks Zenoh's delivery, and with it, through the router, the publishers)."""
+    if topic == "frame/image":
+        return zenoh.handlers.RingChannel(capacity)
+    return zenoh.handlers.FifoChannel(capacity)
 
 
 class ViewerSettings(BaseModel):
@@ -42,6 +54,8 @@ class ViewerSettings(BaseModel):
     jpeg_quality: int = Field(85, ge=1, le=100, description="JPEG quality of the logged frames")
     track_length: int = Field(300, ge=2, le=100_000, description="estimates kept in the drawn track")
     quiet_s: float = Field(1.0, gt=0, le=600, description="after end of stream, stop after this long without messages")
+    max_image_hz: float = Field(10.0, ge=0, description="frame images logged per second of capture time at most "
+                                "(0: every image); the overlays and plots are logged for every frame")
 
     @field_validator("out")
     @classmethod
@@ -63,25 +77,33 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
     eos_at: float | None = None
     try:
         with session:
-            subs = [(topic, burst, session.declare_subscriber(bus.key(topic), zenoh.handlers.FifoChannel(cap)))
+            subs = [(topic, burst, session.declare_subscriber(bus.key(topic), handler(topic, cap)))
                     for topic, (cap, burst) in SUBSCRIPTIONS.items()]
             pub_status = publisher(session, bus.key("status/viewer"))
             token = session.liveliness().declare_token(bus.key("alive/viewer"))
             log.info("logging polartrack/%s/** to %s", bus.stream, cfg.out)
             last_msg = time.monotonic()
             last_ns = None
+            last_image_ns = None
+            image_interval_ns = int(1e9 / cfg.max_image_hz) if cfg.max_image_hz > 0 else 0
+            last_status = time.monotonic()
             while not stopper.stopped:
                 got = 0
-                for _topic, burst, sub in subs:
+                for sub_topic, burst, sub in subs:
                     for _ in range(burst):
                         sample = sub.try_recv()
                         if sample is None:
                             break
-                        got += 1
+                        got += sub_topic != "status/*"  # the services' periodic statuses are not activity
                         c.add("received")
                         topic = bus.suffix(str(sample.key_expr))
                         ns = attachment_ns(sample)
                         last_ns = ns if ns is not None else last_ns
+                        if topic == "frame/image" and ns is not None:
+                            if last_image_ns is not None and 0 <= ns - last_image_ns < image_interval_ns:
+                                c.add("dropped")  # not decoded, not encoded
+                                continue
+                            last_image_ns = ns
                         eos_before = logger.stats["end_of_stream"]
                         malformed_before = logger.stats["malformed"]
                         logger.log_message(topic, payload_bytes(sample), ns)
@@ -91,6 +113,9 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
                             eos_at = time.monotonic()
                             log.info("end of stream; stopping after %.1f s of quiet", cfg.quiet_s)
                 now = time.monotonic()
+                if now - last_status > 1.0:
+                    pub_status.put(c.status().SerializeToString())
+                    last_status = now
                 if got:
                     last_msg = now
                 elif eos_at is not None and now - last_msg >= cfg.quiet_s:
@@ -118,8 +143,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jpeg-quality", type=int, metavar="Q", help="JPEG quality of the logged frames (1-100)")
     p.add_argument("--track-length", type=int, metavar="K", help="estimates kept in the drawn track")
     p.add_argument("--quiet-s", type=float, metavar="S", help="after end of stream, stop after S s without messages")
+    p.add_argument("--max-image-hz", type=float, metavar="HZ", help="frame images logged per second at most (0: all)")
     args = p.parse_args(argv)
-    bus, cfg = options.load("viewer", args, ViewerSettings, ["out", "spawn", "jpeg_quality", "track_length", "quiet_s"])
+    bus, cfg = options.load("viewer", args, ViewerSettings,
+                            ["out", "spawn", "jpeg_quality", "track_length", "quiet_s", "max_image_hz"])
     try:
         bus.zenoh_config()
     except zenoh.ZError as exc:

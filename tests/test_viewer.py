@@ -209,7 +209,8 @@ def test_viewer_flags_are_validated(tmp_path):
     assert r.returncode == 2 and ".rrd" in r.stderr
 
 
-def test_viewer_service_end_to_end(tmp_path):
+@pytest.mark.parametrize("max_image_hz, images", [(0, 3), (10, 1)])  # frames 40 ms apart: 10 Hz logs the first
+def test_viewer_service_end_to_end(tmp_path, max_image_hz, images):
     from services.bus import BusConfig, ns_attachment, open_session, wait_for_alive
 
     port = _free_port()
@@ -217,7 +218,7 @@ def test_viewer_service_end_to_end(tmp_path):
     endpoint = f"tcp/127.0.0.1:{port}"
     out = tmp_path / "live.rrd"
     cfg = tmp_path / "viewer.toml"
-    cfg.write_text(f'out = "{out}"\nquiet_s = 0.5\n\n[bus]\nstream = "{stream}"\nlisten = ["{endpoint}"]\n'
+    cfg.write_text(f'out = "{out}"\nquiet_s = 0.5\nmax_image_hz = {max_image_hz}\n\n[bus]\nstream = "{stream}"\nlisten = ["{endpoint}"]\n'
                    "multicast_scouting = false\n")
     proc = subprocess.Popen([sys.executable, "-m", "services.viewer", "--config", str(cfg)], cwd=REPO, env=_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -238,7 +239,7 @@ def test_viewer_service_end_to_end(tmp_path):
         assert "malformed" in output
         assert out.exists() and out.stat().st_size > 1000
         rows, _ = _rows_by_entity(out)
-        assert rows["/camera/image"] == 3 and rows["/camera/particles"] == 3 and rows["/camera/estimate"] == 3
+        assert rows["/camera/image"] == images and rows["/camera/particles"] == 3 and rows["/camera/estimate"] == 3
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)

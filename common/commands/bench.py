@@ -27,6 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=float, default=30.0, help="--pipeline: length of the live run")
     p.add_argument("--particles", type=int, default=500, help="--pipeline: particles of the RBPF")
     p.add_argument("--no-viewer", action="store_true", help="--pipeline: without the Rerun viewer")
+    p.add_argument("--pace", choices=["realtime", "consumer"], default="realtime",
+                   help="--pipeline: frames at 30 fps (a slow pipeline skips), or every frame paced by the "
+                        "tracker (the CPU per frame of each service, without skipping)")
 
 
 def _median_ms(fn, repeats: int) -> float:
@@ -135,9 +138,14 @@ def _naive_rate(frame: np.ndarray, cx: float, cy: float, xy: np.ndarray, repeats
     return len(xy) / (ms / 1e3)
 
 
-def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool = True, seed: int = 0) -> dict:
-    """The live pipeline: synthetic frames published in real time (30 fps) for ``seconds``."""
+def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool = True, seed: int = 0,
+                     pace: str = "realtime") -> dict:
+    """The live pipeline: synthetic frames published in real time (30 fps) for ``seconds``
+    (``pace="consumer"``: every frame, as fast as the tracker goes). CPU per service is its
+    process CPU time over the run; ``launcher`` is this process (watching the estimates)."""
     import tempfile
+
+    import psutil
 
     from common.recording import read_recording
     from common.settings import profile_for
@@ -149,32 +157,61 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
     src = open_source(spec, n_frames=frames)
     settings = profile_for(src, seed=seed, particles=particles)
     with tempfile.TemporaryDirectory(prefix="polartrack-bench-") as tmp:
-        with Pipeline(spec, src.frame(0).truth.box, settings, out_dir=tmp, frames=frames, pace="realtime",
+        with Pipeline(spec, src.frame(0).truth.box, settings, out_dir=tmp, frames=frames, pace=pace,
                       viewer=viewer) as pipe:
+            cpu0 = sum(psutil.Process().cpu_times()[:2])
             result = pipe.run(progress=False, timeout=seconds * 4 + 120)
+            launcher_s = sum(psutil.Process().cpu_times()[:2]) - cpu0
             statuses = {k: v for k, v in pipe.statuses.items()}
+            steady = steady_cpu(pipe.status_log)
             lat = np.asarray(pipe.latencies, float)
+            step = np.asarray(pipe.step_ms, float)
             skipped = pipe.skipped
         rec = read_recording(result.mcap)
         recorded_images = len(rec.messages.get("frame/image", []))
     published = statuses.get("ingest").published if "ingest" in statuses else frames
+    cpu_s = {k: v.cpu_s for k, v in sorted(statuses.items())} | {"launcher": launcher_s}
     return {
-        "frames": frames, "source": spec, "particles": particles, "viewer": viewer,
+        "frames": frames, "source": spec, "particles": particles, "viewer": viewer, "pace": pace,
         "fps": round(result.fps, 2), "estimates": result.estimates,
         "latency_ms_p50": round(float(np.percentile(lat, 50)), 1) if lat.size else None,
         "latency_ms_p99": round(float(np.percentile(lat, 99)), 1) if lat.size else None,
+        "tracker_step_ms_p50": round(float(np.percentile(step, 50)), 1) if step.size else None,
         "frames_dropped_by_source": int(statuses["ingest"].dropped) if "ingest" in statuses else None,
         "frames_dropped_by_tracker": int(skipped),
         "frames_missing_from_recording": int(published - recorded_images),
-        "cpu_percent": {k: round(100.0 * v.cpu_s / result.wall_s, 1) for k, v in sorted(statuses.items())},
+        "frames_published": int(published),
+        "cpu_percent": {k: round(100.0 * v / result.wall_s, 1) for k, v in cpu_s.items()},
+        "cpu_ms_per_frame": {k: round(1e3 * v / max(published, 1), 1) for k, v in cpu_s.items()},
+        "steady_cpu_percent": {k: v[0] for k, v in steady.items()},
+        "steady_cpu_ms_per_frame": {k: v[1] for k, v in steady.items()},
         "mean_err": None if result.mean_err is None else round(result.mean_err, 2),
         "returncodes": result.returncodes,
     }
 
 
+def steady_cpu(status_log) -> dict[str, tuple[float, float | None]]:
+    """Per service, (CPU percent, CPU ms per published frame) between its second status and its
+    last one: without the start-up (imports, JIT compilation, scene construction) and the first
+    frame's template. ``status_log`` is the launcher's (arrival time, frames seen, status) list."""
+    by_service: dict[str, list] = {}
+    for t, frames, st in status_log:
+        by_service.setdefault(st.service, []).append((t, frames, st.cpu_s))
+    out = {}
+    for service, rows in sorted(by_service.items()):
+        if len(rows) < 3:
+            continue
+        (t0, f0, c0), (t1, f1, c1) = rows[1], rows[-1]
+        if t1 <= t0:
+            continue
+        out[service] = (round(100.0 * (c1 - c0) / (t1 - t0), 1), round(1e3 * (c1 - c0) / (f1 - f0), 1) if f1 > f0 else None)
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     if args.pipeline:
-        result = measure_pipeline(args.seconds, args.particles, viewer=not args.no_viewer, seed=args.seed)
+        result = measure_pipeline(args.seconds, args.particles, viewer=not args.no_viewer, seed=args.seed,
+                                  pace=args.pace)
         print(json.dumps(result) if args.json else "\n".join(f"{k:<30} {v}" for k, v in result.items()))
         return 0
     result = measure(repeats=args.repeats, seed=args.seed)

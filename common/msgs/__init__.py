@@ -73,9 +73,10 @@ def msg_to_image(msg: RawImage) -> np.ndarray:
     h, w = int(msg.height), int(msg.width)
     if h <= 0 or w <= 0 or msg.step != 3 * w:
         raise ValueError(f"bad image geometry {w}x{h} step {msg.step}")
-    if len(msg.data) != h * msg.step:
-        raise ValueError(f"image data has {len(msg.data)} bytes, expected {h * msg.step} (truncated?)")
-    return np.frombuffer(msg.data, np.uint8).reshape(h, w, 3)
+    data = msg.data  # each read of a bytes field is a copy of the whole image
+    if len(data) != h * msg.step:
+        raise ValueError(f"image data has {len(data)} bytes, expected {h * msg.step} (truncated?)")
+    return np.frombuffer(data, np.uint8).reshape(h, w, 3)
 
 
 __all__ = ["RawImage", "FrameInfo", "Truth", "ScoreQuery", "ScoreReply", "Template", "Estimate", "ParticleCloud",

@@ -15,6 +15,7 @@ import numpy as np
 from .config import SceneConfig
 from .noise import fractal_noise
 from .paths import SCHEDULE, VehiclePath, frame_at
+from .pixel_loops import alpha_over
 
 
 @dataclass(frozen=True)
@@ -241,7 +242,4 @@ def composite(img: np.ndarray, layer: WorldLayer, h: np.ndarray) -> None:
         layer.rgba, shift @ m, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0),
     )
-    a = warped[..., 3:4].astype(np.float32) * (1.0 / 255.0)
-    roi = img[y0:y1, x0:x1]
-    out = roi.astype(np.float32) * (1.0 - a) + warped[..., :3].astype(np.float32)
-    roi[...] = np.clip(out + 0.5, 0, 255).astype(np.uint8)
+    alpha_over(img[y0:y1, x0:x1], warped)

@@ -1,0 +1,94 @@
+"""foxglove.RawImage (rgb8) to and from its wire bytes with one copy of the pixels.
+
+A 1280x720 frame is 2.7 MB. ``image_to_msg(...).SerializeToString()`` copies the pixels three
+times (``tobytes``, into the message, into the serialised bytes) and ``msg_to_image(FromString(b))``
+twice (into the message, out of it as ``bytes``). Here the bytes are built once (the small fields
+serialised by protobuf, then the ``data`` field appended: a valid encoding, fields in another
+order), and decoding scans the fields and views the pixels in the received bytes in place.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import RawImage
+
+_DATA = RawImage.DESCRIPTOR.fields_by_name["data"].number
+
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte = value & 0x7F
+        value >>= 7
+        if value:
+            out.append(byte | 0x80)
+        else:
+            out.append(byte)
+            return bytes(out)
+
+
+def encode_image(image: np.ndarray, capture_ns: int, frame_id: str) -> bytes:
+    """The wire bytes of ``image_to_msg(image, capture_ns, frame_id)`` (uint8 RGB (H, W, 3))."""
+    h, w = image.shape[:2]
+    head = RawImage(frame_id=frame_id, width=w, height=h, encoding="rgb8", step=3 * w)
+    head.timestamp.FromNanoseconds(int(capture_ns))
+    prefix = head.SerializeToString() + _varint(_DATA << 3 | 2) + _varint(image.size)
+    out = bytearray(len(prefix) + image.size)
+    out[: len(prefix)] = prefix
+    np.frombuffer(out, np.uint8, image.size, len(prefix)).reshape(image.shape)[...] = image
+    return out
+
+
+def _read_varint(buf, i: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        if i >= len(buf) or shift > 63:
+            raise ValueError("truncated or malformed protobuf varint")
+        byte = buf[i]
+        i += 1
+        value |= (byte & 0x7F) << shift
+        if not byte & 0x80:
+            return value, i
+        shift += 7
+
+
+def decode_image(buf: bytes) -> tuple[RawImage, np.ndarray]:
+    """(the message without its pixels, uint8 RGB (H, W, 3) read-only view into ``buf``) of the
+    wire bytes of a RawImage; ValueError (or protobuf's DecodeError) when malformed, with the
+    same geometry checks as :func:`common.msgs.msg_to_image`."""
+    head, data, i, n = [], None, 0, len(buf)
+    while i < n:
+        start = i
+        key, i = _read_varint(buf, i)
+        wire = key & 7
+        if wire == 0:
+            _, i = _read_varint(buf, i)
+        elif wire == 1:
+            i += 8
+        elif wire == 5:
+            i += 4
+        elif wire == 2:
+            length, i = _read_varint(buf, i)
+            if key >> 3 == _DATA:
+                data = (i, length)
+                i += length
+                if i > n:
+                    raise ValueError("truncated image data")
+                continue
+            i += length
+        else:
+            raise ValueError(f"unsupported protobuf wire type {wire}")
+        if i > n:
+            raise ValueError("truncated protobuf field")
+        head.append(bytes(buf[start:i]))
+    msg = RawImage.FromString(b"".join(head))
+    if msg.encoding != "rgb8":
+        raise ValueError(f"unsupported image encoding {msg.encoding!r} (expected rgb8)")
+    h, w = int(msg.height), int(msg.width)
+    if h <= 0 or w <= 0 or msg.step != 3 * w:
+        raise ValueError(f"bad image geometry {w}x{h} step {msg.step}")
+    offset, length = data if data is not None else (0, 0)
+    if length != h * msg.step:
+        raise ValueError(f"image data has {length} bytes, expected {h * msg.step} (truncated?)")
+    return msg, np.frombuffer(buf, np.uint8, length, offset).reshape(h, w, 3)
