@@ -129,10 +129,11 @@ SYNTHETIC_BETA = {"a1": 5.69, "b1": 2.81, "a0": 0.25, "b0": 8.08}
 Beta(0.25, 8.08). Pang's Beta(5, 7) / Beta(1, 7) were fitted to their own detector and video."""
 
 
-RECOVERY_PROPOSAL = {"candidates": 2, "jump_candidates": 1, "jump_probability": 0.01, "jump_std": 2.0}
+RECOVERY_PROPOSAL = {"candidates": 3, "jump_candidates": 2, "jump_probability": 0.01, "jump_std": 2.0}
 """RBPF settings beyond Pang for occlusion recovery (``polartrack study``'s ``rbpf+jumps`` row; all
 off by default): a jump component in the motion model for visible targets (probability 0.01 a
-step, 2 m per axis), explored by one of two candidates per particle. Measured on the synthetic
+step, 2 m per axis), explored by two of three candidates per particle (the filter carries N
+particles and scores 3N hypotheses a frame in its one batched query). Measured on the synthetic
 scene: the failing seeds of Pang's filter lock onto a secondary peak half a car length ahead of a
 car emerging from the smoke, which the plain NCV cannot leave (see the README's results)."""
 
