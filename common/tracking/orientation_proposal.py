@@ -26,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logsumexp
 
+from .resampling import draw_per_row
+
 N_GRID = 48
 MAX_HARMONIC = 14
 """Highest angular harmonic of a polar-matching score curve (|h| <= 14: exactly represented by
@@ -83,7 +85,6 @@ def sample_orientation(grid: np.ndarray, theta_prev: np.ndarray, sigma_deg: floa
     joint = log_pv_prior[:, None, :] + log_likelihood(s)  # (N, J, 2)
     log_mj = np.logaddexp(joint[..., 0], joint[..., 1]) + log_g  # log g_j m_pj
     log_m = logsumexp(log_mj, axis=1)
-    cdf = np.cumsum(np.exp(log_mj - log_m[:, None]), axis=1)
-    j = np.minimum((cdf < rng.uniform(size=n)[:, None] * cdf[:, -1:]).sum(axis=1), len(u) - 1)
+    j = draw_per_row(log_mj, log_m, rng)
     rows = np.arange(n)
     return nodes[rows, j], log_m, s[rows, j], joint[rows, j]

@@ -193,7 +193,8 @@ class RaoBlackwellisedParticleFilter:
         self.particles[jumped, 2] += offsets[jumped, 1]
         if cfg.jump_candidates > 0:
             residual = self.particles[:, :4] - cfg.motion.predict_mean(parents, dt)
-            self.log_w = self.log_w + jump_mixture_log_weights(residual, cfg.motion.covariance(dt), cfg.jump_std, eps, float(jumped.mean()))
+            self.log_w = self.log_w + jump_mixture_log_weights(residual, cfg.motion.covariance(dt), cfg.jump_std,
+                                                               eps, float(jumped.mean()))
             self.log_w = resampling.normalise_log_weights(self.log_w)
 
     def _keep_one_per_group(self) -> np.ndarray:
@@ -202,12 +203,7 @@ class RaoBlackwellisedParticleFilter:
         k = self.n_particles // self._n
         lw = self.log_w.reshape(self._n, k)
         group = logsumexp(lw, axis=1)
-        finite = np.isfinite(group)
-        p = np.exp(lw - np.where(finite, group, 0.0)[:, None])
-        p[~finite] = 1.0 / k
-        cdf = np.cumsum(p, axis=1)
-        pick = np.minimum((cdf < self.rng.uniform(size=self._n)[:, None] * cdf[:, -1:]).sum(axis=1), k - 1)
-        keep = np.arange(self._n) * k + pick
+        keep = np.arange(self._n) * k + resampling.draw_per_row(lw, group, self.rng)
         self.particles = self.particles[keep]
         self.log_pv = self.log_pv[keep]
         self.log_w = group

@@ -150,3 +150,15 @@ def get_scheme(name: str) -> Resampler:
         return SCHEMES[name]
     except KeyError:
         raise ValueError(f"unknown resampling scheme {name!r}; choose from {sorted(SCHEMES)}") from None
+
+
+def draw_per_row(log_p: np.ndarray, log_total: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One index per row of the unnormalised log probabilities ``log_p`` (N, K), given each row's
+    ``log_total`` = logsumexp(log_p, axis=1); a row with no finite total is drawn uniformly.
+    N uniforms from ``rng``. (The RBPF's candidate selection and orientation sampling.)"""
+    n, k = log_p.shape
+    finite = np.isfinite(log_total)
+    p = np.exp(log_p - np.where(finite, log_total, 0.0)[:, None])
+    p[~finite] = 1.0 / k
+    cdf = np.cumsum(p, axis=1)
+    return np.minimum((cdf < rng.uniform(size=n)[:, None] * cdf[:, -1:]).sum(axis=1), k - 1)
