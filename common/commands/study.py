@@ -21,13 +21,13 @@ import numpy as np
 
 HELP = "reproduce the papers' claims on the synthetic scene over many seeds"
 
-METHODS = {
-    "rbpf": ("rbpf", {"particles": 200}, None),
-    "rbpf+jumps": ("rbpf", {"particles": 200}, "recovery"),
-    "sir": ("sir", {"particles": 300}, None),
-    "ml@0.5": ("ml", {}, 0.5),
-    "ml@0.6": ("ml", {}, 0.6),
-    "ml@0.7": ("ml", {}, 0.7),
+METHODS = {  # name: (filter, profile_for keywords, updates of that filter's config)
+    "rbpf": ("rbpf", {"particles": 200}, {}),
+    "rbpf+jumps": ("rbpf", {"particles": 200}, "RECOVERY_PROPOSAL"),
+    "sir": ("sir", {"particles": 300}, {}),
+    "ml@0.5": ("ml", {}, {"threshold": 0.5}),
+    "ml@0.6": ("ml", {}, {"threshold": 0.6}),
+    "ml@0.7": ("ml", {}, {"threshold": 0.7}),
 }
 
 
@@ -48,12 +48,11 @@ def run_seed(seed: int, frames: int | None) -> dict:
     source = SyntheticSource(seed=seed, n_frames=frames)
     init = source.frame(0).truth.box
     settings = {}
-    for name, (filt, kw, thr) in METHODS.items():
+    for name, (filt, kw, upd) in METHODS.items():
         st = profile_for(source, filter=filt, seed=seed, **kw)
-        if thr == "recovery":
-            st = st.model_copy(update={"rbpf": st.rbpf.model_copy(update=RECOVERY_PROPOSAL)})
-        elif thr is not None:
-            st = st.model_copy(update={"ml": st.ml.model_copy(update={"threshold": thr})})
+        upd = RECOVERY_PROPOSAL if upd == "RECOVERY_PROPOSAL" else upd
+        if upd:
+            st = st.model_copy(update={filt: getattr(st, filt).model_copy(update=upd)})
         settings[name] = st
     run = evaluate(source, init, settings)
     smoke = source.scene.events.get("smoke")
