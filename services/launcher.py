@@ -151,7 +151,15 @@ class Pipeline:
         log = open(self.log_dir / f"{service}.log", "ab")
         self.logs[service] = log
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        proc = subprocess.Popen(self.command(service), stdout=log, stderr=subprocess.STDOUT, env=env,
+        cmd = self.command(service)
+        profile_dir = os.environ.get("POLARTRACK_PROFILE_DIR")
+        if profile_dir:  # developers: a cProfile of every service, written when it exits
+            Path(profile_dir).mkdir(parents=True, exist_ok=True)
+            out = str(Path(profile_dir) / f"{service}.prof")
+            code = (f"import cProfile, sys; import services.{service} as m; "
+                    f"cProfile.run('m.main(sys.argv[1:])', {out!r})")
+            cmd = [cmd[0], "-c", code, *cmd[3:]]
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
                                 start_new_session=True)
         self.procs[service] = proc
         return proc

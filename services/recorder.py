@@ -35,13 +35,18 @@ class RecorderSettings(BaseModel):
 
     out: str = Field(description="MCAP file to write")
     compression: Literal["lz4", "none"] = Field("lz4", description="chunk compression")
-    chunk_size: int = Field(4 << 20, ge=1 << 16, description="bytes per chunk (a chunk is the unit lost on SIGKILL)")
+    chunk_size: int = Field(256 << 10, ge=1 << 16, description="bytes per chunk (a chunk is the unit lost on SIGKILL); "
+                            "a frame larger than this closes its chunk at once")
 
 
 class McapSink:
     """MCAP writing with one schema per message class and one channel per topic."""
 
-    def __init__(self, path: str, compression: str = "lz4", chunk_size: int = 4 << 20):
+    def __init__(self, path: str, compression: str = "lz4", chunk_size: int = 256 << 10):
+        """``chunk_size``: small chunks are much cheaper for large frames. The writer collects a
+        chunk in a growing buffer, so a 2.7 MB frame landing in a 4 MiB chunk behind other
+        messages is copied again as the buffer grows: 11.9 ms of CPU a frame against 1.9 ms with
+        256 KiB chunks (1280x720 RGB frames plus a frame's queries, replies and estimates)."""
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         self.fh = open(path, "wb")
         comp = CompressionType.LZ4 if compression == "lz4" else CompressionType.NONE

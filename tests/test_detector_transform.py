@@ -36,3 +36,16 @@ def test_negative_control_wrong_filters_differ():
     mine = highpasses(img)[3][:, :, 0, :]
     ref = dtcwt.Transform2d().forward(img, nlevels=5).highpasses[2]
     assert np.max(np.abs(mine - ref)) > 0.05 * np.max(np.abs(ref))
+
+
+def test_q2c_equals_the_complex64_expression():
+    """The real-arithmetic q2c gives exactly dtcwt's complex expression in float32."""
+    from common.detector.transform import _SQRT_HALF, _q2c
+
+    y = (np.random.default_rng(5).standard_normal((64, 48, 3)) * 100).astype(np.float32)
+    p = (y[0::2, 0::2] + 1j * y[0::2, 1::2]) * _SQRT_HALF
+    q = (y[1::2, 1::2] - 1j * y[1::2, 0::2]) * _SQRT_HALF
+    lo, hi = _q2c(y)
+    assert lo.dtype == hi.dtype == np.complex64
+    assert np.array_equal(lo, (p - q).astype(np.complex64))
+    assert np.array_equal(hi, (p + q).astype(np.complex64))

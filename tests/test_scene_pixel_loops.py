@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from common.scene import SceneConfig, SyntheticScene
-from common.scene.noise import random_bytes
-from common.scene.pixel_loops import alpha_over
+import cv2
+
+from common.scene.noise import SensorNoise, random_bytes
+from common.scene.pixel_loops import add_noise, alpha_over
 
 # sha256 (first 16 hex digits) of frames of the default scene, rendered by the code before the
 # alpha-over loop and the copy-free random bytes (commit 047fe72).
@@ -47,6 +49,29 @@ def test_random_bytes_equal_generator_bytes(n):
     a, b = np.random.default_rng([4, 2, n]), np.random.default_rng([4, 2, n])
     assert random_bytes(a, n).tobytes() == b.bytes(n)
     assert a.integers(0, 1 << 30) == b.integers(0, 1 << 30)  # the generators are left in the same state
+
+
+def test_random_bytes_after_a_buffered_uint32_equal_generator_bytes():
+    """A generator holding half a 64-bit output (after an odd number of uint32 draws) must not take
+    the raw path: its next bytes start with the buffered half."""
+    a, b = np.random.default_rng(11), np.random.default_rng(11)
+    a.integers(0, 1 << 32, size=3, dtype=np.uint32)
+    b.integers(0, 1 << 32, size=3, dtype=np.uint32)
+    assert random_bytes(a, 4096).tobytes() == b.bytes(4096)
+    assert a.integers(0, 1 << 30) == b.integers(0, 1 << 30)
+
+
+def test_add_noise_equals_the_opencv_expression():
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (50, 70, 3), dtype=np.uint8)
+    img[:5], img[5:10] = 255, 0  # both saturations
+    noise = SensorNoise(9.0)
+    u = rng.integers(0, 256, img.shape, dtype=np.uint8)
+    want = cv2.subtract(cv2.add(img, cv2.LUT(u, noise._pos)), cv2.LUT(u, noise._neg))
+    got = np.empty_like(img)
+    add_noise(img.reshape(-1), u.reshape(-1), noise._pos, noise._neg, got.reshape(-1))
+    assert np.array_equal(want, got)
+    assert not np.array_equal(got, img)  # the noise did something
 
 
 @pytest.mark.parametrize("seed", sorted(GOLDEN))

@@ -30,27 +30,41 @@ def _filters(biort: str, qshift: str) -> dict[str, np.ndarray]:
     return {"h0o": b[0], "h0a": q[0], "h0b": q[1], "h1a": q[4], "h1b": q[5], "h2a": q[8], "h2b": q[9]}
 
 
-def _coldfilt_rows(x: np.ndarray, ha: np.ndarray, hb: np.ndarray) -> np.ndarray:
-    """dtcwt's ``coldfilt`` along axis 0 of a 2-D float32 array (rows a multiple of 4).
+@lru_cache(maxsize=None)
+def _column_kernel(h: tuple[float, ...]) -> np.ndarray:
+    """``h`` reversed as a float32 (len, 1) filter2D kernel."""
+    k = np.asarray(h[::-1], np.float64).reshape(-1, 1).astype(np.float32)
+    k.setflags(write=False)
+    return k
 
-    With ``xp`` the half-sample-symmetric extension of ``x`` by ``m = len(ha)`` rows, dtcwt's
+
+def _pad_rows(x: np.ndarray, m: int) -> np.ndarray:
+    """The half-sample-symmetric extension of a 2-D array by ``m`` rows at both ends."""
+    return cv2.copyMakeBorder(x, m, m, 0, 0, cv2.BORDER_REFLECT)
+
+
+def _coldfilt_rows(xp: np.ndarray, m: int, ha: np.ndarray, hb: np.ndarray) -> np.ndarray:
+    """dtcwt's ``coldfilt`` along axis 0 of a 2-D float32 array ``x`` (rows a multiple of 4),
+    given ``xp = _pad_rows(x, m)`` with ``m = len(ha)`` (one padding serves several filters).
+
+    With ``xp`` the half-sample-symmetric extension of ``x`` by ``m`` rows, dtcwt's
     definition reduces to ``ya[n] = sum_i ha[i] xp[4n + 2m - 2i]`` and
     ``yb[n] = sum_i hb[i] xp[4n + 2m + 1 - 2i]``, interleaved (order set by the sign of
     ``sum(ha * hb)``). Both are a plain convolution of the even / odd rows of ``xp`` taken at
     every second output, done here by OpenCV.
     """
-    r = x.shape[0]
-    m = len(ha)
-    xp = cv2.copyMakeBorder(x, m, m, 0, 0, cv2.BORDER_REFLECT)
+    if len(ha) != m:
+        raise ValueError(f"rows padded by {m} for a filter of length {len(ha)}")
+    r = xp.shape[0] - 2 * m
     even = xp[0::2]  # strided row views: OpenCV takes them without a copy
     odd = xp[1::2]
     # filter2D correlates: dst[q] = sum_j k[j] src[q + j]; with k = h[::-1] that is
     # sum_i h[i] src[q + m - 1 - i], and q = 2n + 1 gives the wanted sum.
-    ka = np.ascontiguousarray(ha[::-1].reshape(-1, 1), dtype=np.float32)
-    kb = np.ascontiguousarray(hb[::-1].reshape(-1, 1), dtype=np.float32)
+    ka = _column_kernel(tuple(ha))
+    kb = _column_kernel(tuple(hb))
     ya = cv2.filter2D(even, -1, ka, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)[1::2][: r // 4]
     yb = cv2.filter2D(odd, -1, kb, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)[1::2][: r // 4]
-    y = np.empty((r // 2,) + x.shape[1:], np.float32)
+    y = np.empty((r // 2,) + xp.shape[1:], np.float32)
     if float(np.sum(ha * hb)) > 0:
         y[0::2], y[1::2] = ya, yb
     else:
@@ -58,20 +72,22 @@ def _coldfilt_rows(x: np.ndarray, ha: np.ndarray, hb: np.ndarray) -> np.ndarray:
     return y
 
 
-def _coldfilt(x: np.ndarray, ha: np.ndarray, hb: np.ndarray, axis: int) -> np.ndarray:
-    """``coldfilt`` of an (r, c, C) array along axis 0 (vertical) or 1 (horizontal)."""
-    if axis == 0:
-        r, c, ch = x.shape
-        return _coldfilt_rows(x.reshape(r, c * ch), ha, hb).reshape(r // 2, c, ch)
-    xt = np.ascontiguousarray(x.transpose(1, 0, 2))
-    return _coldfilt(xt, ha, hb, 0).transpose(1, 0, 2)
-
-
 def _q2c(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """dtcwt's ``q2c``: 2x2 quads of real samples -> the two complex subbands (p - q, p + q)."""
-    p = (y[0::2, 0::2] + 1j * y[0::2, 1::2]) * _SQRT_HALF
-    q = (y[1::2, 1::2] - 1j * y[1::2, 0::2]) * _SQRT_HALF
-    return (p - q).astype(np.complex64), (p + q).astype(np.complex64)
+    """dtcwt's ``q2c``: 2x2 quads of real samples -> the two complex subbands (p - q, p + q), with
+    p = (a + i b) s and q = (d - i c) s for the quad [[a, b], [c, d]] and s = sqrt(1/2).
+
+    Written out in real float32 arithmetic: the same float32 products and sums as the complex64
+    expression ``(y00 + 1j y01) s - (y11 - 1j y10) s`` (tested equal), without its complex
+    temporaries."""
+    s = _SQRT_HALF
+    a, b = y[0::2, 0::2] * s, y[0::2, 1::2] * s
+    c, d = y[1::2, 0::2] * s, y[1::2, 1::2] * s
+    out = []
+    for re, im in ((a - d, b + c), (a + d, b - c)):
+        z = np.empty(re.shape, np.complex64)
+        z.real, z.imag = re, im
+        out.append(z)
+    return out[0], out[1]
 
 
 def highpasses(
@@ -81,31 +97,44 @@ def highpasses(
 
     ``image``: (H, W) or (H, W, C) real array; H and W multiples of ``2**nlevels``.
     Returns {level: complex64 array (H / 2**level, W / 2**level, C, 6)}, subbands in dtcwt's order.
+
+    Arrays are filtered along their rows as 2-D (rows, columns x channels) arrays; filtering
+    along the columns works on the transposed (columns, rows x channels) array, so each level
+    pads its input once for the three column filters and transposes each of lo, hi and band
+    once (lo serves both the next level and the vertical subbands).
     """
     x = np.asarray(image, np.float32)
     if x.ndim == 2:
         x = x[:, :, None]
-    h, w = x.shape[:2]
+    h, w, ch = x.shape
     if h % 2**nlevels or w % 2**nlevels:
         raise ValueError(f"image {w}x{h} is not a multiple of {2**nlevels} pixels; pad it first")
     f = _filters(biort, qshift)
     h0o = f["h0o"].astype(np.float32)
+    m = len(f["h0a"])
     # Level 1 lowpass (odd-length symmetric filter, same size, half-sample symmetric edges).
-    lolo = cv2.sepFilter2D(np.ascontiguousarray(x.reshape(h, w * 0 + w, -1)), -1, h0o, h0o,
-                           borderType=cv2.BORDER_REFLECT) if x.shape[2] <= 4 else _sep_many(x, h0o)
-    if lolo.ndim == 2:
-        lolo = lolo[:, :, None]
+    lolo = cv2.sepFilter2D(np.ascontiguousarray(x), -1, h0o, h0o,
+                           borderType=cv2.BORDER_REFLECT) if ch <= 4 else _sep_many(x, h0o)
+    lolo = np.ascontiguousarray(lolo).reshape(h, w * ch)  # (rows, columns x channels)
     out: dict[int, np.ndarray] = {}
     for level in range(2, nlevels + 1):
-        lo = _coldfilt(lolo, f["h0b"], f["h0a"], 0)
-        hi = _coldfilt(lolo, f["h1b"], f["h1a"], 0)
-        ba = _coldfilt(lolo, f["h2b"], f["h2a"], 0)
+        r, c = lolo.shape[0], lolo.shape[1] // ch
+        xp = _pad_rows(lolo, m)
+        bands = [_coldfilt_rows(xp, m, f[a], f[b]) for a, b in (("h0b", "h0a"), ("h1b", "h1a"), ("h2b", "h2a"))]
+        # transposed: (columns, rows / 2 x channels)
+        lo_t, hi_t, ba_t = (np.ascontiguousarray(y.reshape(r // 2, c, ch).transpose(1, 0, 2)).reshape(c, r // 2 * ch)
+                            for y in bands)  # fmt: skip
+        lo_tp = _pad_rows(lo_t, m)
         if level < nlevels:
-            lolo = _coldfilt(lo, f["h0b"], f["h0a"], 1)
+            lolo_t = _coldfilt_rows(lo_tp, m, f["h0b"], f["h0a"])  # (c / 2, r / 2 x ch)
+            lolo = np.ascontiguousarray(lolo_t.reshape(c // 2, r // 2, ch).transpose(1, 0, 2)).reshape(r // 2, c // 2 * ch)
         if level >= first:
-            hh = _coldfilt(hi, f["h0b"], f["h0a"], 1)
-            vv = _coldfilt(lo, f["h1b"], f["h1a"], 1)
-            dd = _coldfilt(ba, f["h2b"], f["h2a"], 1)
+            def rowfilt(xt_p, ha, hb):  # filtered along the columns, back in (rows, columns, channels)
+                return _coldfilt_rows(xt_p, m, ha, hb).reshape(c // 2, r // 2, ch).transpose(1, 0, 2)
+
+            hh = rowfilt(_pad_rows(hi_t, m), f["h0b"], f["h0a"])
+            vv = rowfilt(lo_tp, f["h1b"], f["h1a"])
+            dd = rowfilt(_pad_rows(ba_t, m), f["h2b"], f["h2a"])
             z05, z50 = _q2c(hh)
             z23, z32 = _q2c(vv)
             z14, z41 = _q2c(dd)
