@@ -24,6 +24,23 @@ def segment_files() -> set[str]:
         return set()
 
 
+def segments_mapped_by(pids) -> set[str]:
+    """Names of the segment files that processes ``pids`` have mapped now (from /proc/PID/maps):
+    the segments of one run, told apart from those of other runs on the same machine."""
+    names: set[str] = set()
+    for pid in pids:
+        try:
+            maps = Path(f"/proc/{int(pid)}/maps").read_text()
+        except OSError:
+            continue
+        for line in maps.splitlines():
+            fields = line.split(maxsplit=5)  # address perms offset dev inode [path]
+            path = fields[5] if len(fields) == 6 else ""
+            if path.startswith(str(SHM_DIR) + "/") and path.endswith(".zenoh"):
+                names.add(Path(path).name)
+    return names
+
+
 def _orphaned(path: Path, remove: bool) -> bool:
     try:
         fd = os.open(path, os.O_RDONLY)

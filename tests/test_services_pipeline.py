@@ -5,7 +5,6 @@ port, services as clients, multicast scouting off) and stops them all, whatever 
 """
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -27,23 +26,23 @@ SOURCE = "synthetic:3"
 FRAMES = 12
 
 
-def shm_files() -> set[str]:
-    try:
-        return {f for f in os.listdir("/dev/shm") if "zenoh" in f.lower()}
-    except FileNotFoundError:
-        return set()
-
-
 @pytest.fixture(scope="module")
 def recorded_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
     src = open_source(SOURCE, n_frames=FRAMES)
     settings = profile_for(src, seed=3)
     init = src.frame(0).truth.box
-    shm_before = shm_files()
+    from services.shm_files import segments_mapped_by
+
+    used: set[str] = set()  # this run's shared-memory segments (others may run beside it)
+
+    def note_segments(pipe, est):
+        if est.frame_index == FRAMES // 2:
+            used.update(segments_mapped_by(p.pid for p in pipe.procs.values()))
+
     with Pipeline(SOURCE, init, settings, out_dir=out, frames=FRAMES, viewer=False, log_dir=out) as pipe:
-        result = pipe.run(progress=False, timeout=240)
-    return {"result": result, "settings": settings, "init": init, "dir": out, "shm_before": shm_before}
+        result = pipe.run(progress=False, timeout=240, on_estimate=note_segments)
+    return {"result": result, "settings": settings, "init": init, "dir": out, "shm_used": used}
 
 
 def test_every_service_exits_cleanly(recorded_run):
@@ -120,7 +119,10 @@ def test_replay_detects_a_changed_estimate(recorded_run, tmp_path):
 
 
 def test_no_zenoh_shared_memory_left(recorded_run):
-    assert shm_files() <= recorded_run["shm_before"]
+    from services.shm_files import segment_files
+
+    assert recorded_run["shm_used"], "the services mapped no shared-memory segment mid-run"
+    assert not (segment_files() & recorded_run["shm_used"])
 
 
 def test_detector_killed_and_restarted(tmp_path):
@@ -191,16 +193,15 @@ def test_recorder_killed_leaves_a_readable_file(tmp_path):
 def test_killed_services_leave_no_shared_memory(tmp_path):
     """The frames go through Zenoh shared memory; a service killed mid-run (SIGKILL: no clean-up
     of its own) leaves no segment file once the run is over."""
-    from services.shm_files import segment_files
+    from services.shm_files import segment_files, segments_mapped_by
 
     frames = 20
     src = open_source(SOURCE, n_frames=frames)
-    before = segment_files()
     during: set[str] = set()
 
     def kill(pipe, est):
         if est.frame_index == 8 and not during:
-            during.update(segment_files() - before)
+            during.update(segments_mapped_by(p.pid for p in pipe.procs.values()))
             for service in ("detector", "recorder"):
                 pipe.procs[service].send_signal(signal.SIGKILL)
                 pipe.procs[service].wait(10)

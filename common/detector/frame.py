@@ -38,7 +38,8 @@ _SPLINE_PREFILTER = (_SPLINE_PREFILTER / _SPLINE_PREFILTER.sum()).astype(np.floa
 scipy.ndimage.spline_filter here."""
 
 
-def _as_float_image(image: np.ndarray) -> np.ndarray:
+def _checked_image(image: np.ndarray) -> np.ndarray:
+    """``image`` as (H, W, C), C 1 or 3, in its own dtype (only the crop is converted to float32)."""
     arr = np.asarray(image)
     if arr.ndim == 2:
         arr = arr[:, :, None]
@@ -46,7 +47,7 @@ def _as_float_image(image: np.ndarray) -> np.ndarray:
         raise ValueError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {arr.shape}")
     if arr.shape[0] < 1 or arr.shape[1] < 1:
         raise ValueError("empty image")
-    return np.asarray(arr, np.float32)
+    return arr if arr.dtype in (np.uint8, np.float32) else np.asarray(arr, np.float32)
 
 
 @dataclass
@@ -135,7 +136,7 @@ def prepare_frame(image: np.ndarray, region: tuple[float, float, float, float] |
     plus ``KERNEL_MARGIN_PX`` on each side (clipped to the frame, where the padding is the same
     symmetric reflection as a full-frame preparation).
     """
-    img = _as_float_image(image)
+    img = _checked_image(image)
     height, width, nch = img.shape
     hp = -(-height // BLOCK) * BLOCK
     wp = -(-width // BLOCK) * BLOCK
@@ -161,7 +162,7 @@ def prepare_frame(image: np.ndarray, region: tuple[float, float, float, float] |
         src = cv2.copyMakeBorder(src, 0, pad_b, 0, pad_r, cv2.BORDER_REFLECT)
         if src.ndim == 2:
             src = src[:, :, None]
-    levels = _prepare_levels(np.ascontiguousarray(src), (cx0, cy0))
+    levels = _prepare_levels(np.ascontiguousarray(src, np.float32), (cx0, cy0))
     return PreparedFrame(width=width, height=height, channels=nch, levels=levels,
                          region=(rx0, ry0, rx1, ry1))
 
