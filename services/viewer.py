@@ -37,11 +37,17 @@ SUBSCRIPTIONS = {
 }
 
 
+RINGS = ("frame/image", "track/particles")
+"""The bulky streams: kept in rings that drop the oldest rather than ever fill."""
+
+
 def handler(topic: str, capacity: int):
-    """A bounded channel for a subscription. Frame images go to a ring that drops the oldest: a
-    viewer that cannot encode every frame logs the newest ones, and never blocks the bus (a full
-    FIFO channel blocks Zenoh's delivery, and with it, through the router, the publishers)."""
-    if topic == "frame/image":
+    """A bounded channel for a subscription. Frame images and particle clouds go to rings that
+    drop the oldest: a viewer short of CPU (it runs at a lower priority) logs the newest ones
+    and never blocks the bus (a full FIFO channel blocks Zenoh's delivery, and with it, through
+    the router, the publishers). The small messages (infos, estimates) keep FIFOs deep enough
+    for half a minute of frames."""
+    if topic in RINGS:
         return zenoh.handlers.RingChannel(capacity)
     return zenoh.handlers.FifoChannel(capacity)
 

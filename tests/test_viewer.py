@@ -41,7 +41,7 @@ def _messages(n_frames: int = 3) -> list[tuple[str, bytes, int]]:
         info = FrameInfo(index=i, time_s=i * 0.04, capture_ns=ns, width=W, height=H,
                          homography=[1, 0, 0, 0, 1, 0, 0, 0, 1], truth=truth, source="test", total_frames=n_frames)
         out.append(("frame/info", info.SerializeToString(), ns))
-        est = Estimate(frame_index=i, time_s=i * 0.04, observed=True, filter="sir", x=27 + i, y=20, theta_deg=9.0,
+        est = Estimate(frame_index=i, time_s=i * 0.04, observed=True, filter="sir", x=27 + i, y=20, theta_deg=9.0 + i,
                        p_visible=0.9, world_x=27 + i, world_y=20, speed=25.0, mmse_x=26.5 + i, mmse_y=19.5,
                        n_eff=15.0)
         out.append(("track/estimate", est.SerializeToString(), ns))
@@ -99,6 +99,14 @@ def test_mcap_to_rrd(tmp_path):
                  "/plots/speed", "/plots/theta/estimate", "/plots/error/map_px"):
         assert rows[path] == 3, (path, rows)
     assert rows["/camera/track"] == 2  # drawn from the second estimate on
+    # the time series go out in columns: each point at its own frame, with its value
+    from rerun.chunk import RrdReader
+
+    series = [c.to_record_batch() for c in RrdReader(rrd).stream().to_chunks()
+              if c.entity_path == "/plots/theta/estimate" and not c.is_static]
+    points = sorted((f, v[0]) for b in series for f, v in zip(b.column("frame").to_pylist(),
+                                                              b.column("Scalars:scalars").to_pylist()))
+    assert points == [(0, 9.0), (1, 10.0), (2, 11.0)]
     # the blueprint travels in the file
     from rerun.chunk import RrdReader
 
