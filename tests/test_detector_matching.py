@@ -62,14 +62,14 @@ def test_negative_control_flipped_kc(blob_sweep):
 
 def test_negative_control_no_fix(blob_sweep, monkeypatch):
     monkeypatch.setattr(frame_mod, "FIX", np.ones(6, np.complex128))
-    frame_mod._demodulator.cache_clear()
+    frame_mod._demodulator_grid.cache_clear()
     try:
         centre = (128.0, 128.0)
         matcher = PolarMatcher(Template.from_image(blob_sweep[0], centre))
         rms, _, _ = sweep(blob_sweep, centre, matcher)
     finally:
         monkeypatch.undo()
-        frame_mod._demodulator.cache_clear()
+        frame_mod._demodulator_grid.cache_clear()
     assert rms > 15.0  # about 40 degrees: the matcher is useless without the phase fix
 
 
