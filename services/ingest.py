@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common.msgs import Estimate, FrameInfo, Truth
 from common.msgs.image_wire import encode_image
-from common.sources import Frame, SourceError, open_source
+from common.sources import Frame, PrerenderedSource, SourceError, open_source
 from services import options
 from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
 
@@ -39,6 +39,9 @@ class IngestSettings(BaseModel):
     wait_timeout_s: float = Field(60.0, gt=0)
     start_ns: int | None = Field(None, description="time base: capture_ns of frame 0 (default: now)")
     run_config: str | None = Field(None, description="RunConfig (JSON) to publish before the first frame")
+    prerender: bool = Field(False, description="read or render every frame before the first is published "
+                            "(seekable sources; memory: all frames), so that the source costs no more than "
+                            "reading a recorded video while the run goes on")
 
 
 def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true_centre=None) -> FrameInfo:
@@ -60,17 +63,30 @@ def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true
     return info
 
 
-def frames_to_publish(source, pace: str, counters: Counters):
+class Clock:
+    """The real-time clock of a file source: ``wall0`` is the monotonic time of source time 0."""
+
+    def __init__(self) -> None:
+        self.wall0: float | None = None
+
+    def start(self, frame_time: float) -> None:
+        """Frame time ``frame_time`` is due now."""
+        self.wall0 = time.monotonic() - frame_time
+
+
+def frames_to_publish(source, pace: str, counters: Counters, clock: Clock | None = None):
     """Frames in source order; in real time, a source that can be read at any frame skips
     straight to the frame due now when it falls behind (counted as dropped), as a camera would,
-    instead of reading frames it will not publish. The clock starts at the first frame."""
+    instead of reading frames it will not publish. The clock starts at the first frame (or when
+    the caller restarts ``clock``)."""
     if pace != "realtime" or source.live or not hasattr(source, "frame"):
         yield from source
         return
     n = len(source)
     i = 0
-    wall0 = None
+    clock = clock if clock is not None else Clock()
     while i < n:
+        wall0 = clock.wall0
         if wall0 is not None:
             due = int((time.monotonic() - wall0) * source.fps)
             if due > i:
@@ -79,8 +95,8 @@ def frames_to_publish(source, pace: str, counters: Counters):
                 if i >= n:
                     break
         frame = source.frame(i)
-        if wall0 is None:
-            wall0 = time.monotonic() - frame.time
+        if clock.wall0 is None:
+            clock.start(frame.time)
         yield frame
         i += 1
 
@@ -92,6 +108,10 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
 
     c = Counters("ingest")
     source = open_source(cfg.source, n_frames=cfg.frames)
+    if cfg.prerender:
+        t0 = time.monotonic()
+        source = PrerenderedSource(source)
+        log.info("prerendered %d frames in %.1f s", len(source), time.monotonic() - t0)
     total = 0 if source.live else len(source)
     inbox = Inbox()
     with open_session(bus) as session:
@@ -109,33 +129,49 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             rc.start_ns = start_ns
             publisher(session, bus.key("run/config")).put(rc.SerializeToString(), attachment=ns_attachment(start_ns))
         done = -1  # highest frame index estimated
-        wall0 = None  # the real-time clock starts at the first frame
+        clock = Clock()  # the real-time clock starts at the first frame
         last_ns = start_ns
         index = -1
         last_status = time.monotonic()
-        for frame in frames_to_publish(source, cfg.pace, c):
+        first_time: float | None = None
+
+        def wait_for_estimate(upto: int) -> None:
+            """Until frame ``upto`` or a later one is estimated (consumer pacing, and the first
+            frame of a real-time run), or ``consumer_timeout_s``."""
+            nonlocal done
+            deadline = time.monotonic() + cfg.consumer_timeout_s
+            while done < upto and not stopper.stopped:
+                inbox.wait(0.05)
+                while (s := inbox.pop("estimate")) is not None:
+                    try:
+                        done = max(done, int(Estimate.FromString(payload_bytes(s)).frame_index))
+                    except Exception:  # noqa: BLE001
+                        c.add("malformed")
+                if time.monotonic() > deadline:
+                    log.warning("no estimate for frame %d after %.0f s: going on", done + 1, cfg.consumer_timeout_s)
+                    done = upto
+                    c.add("errors")
+
+        for frame in frames_to_publish(source, cfg.pace, c, clock):
             if stopper.stopped:
                 break
             index = frame.index
             if cfg.pace == "consumer":
-                deadline = time.monotonic() + cfg.consumer_timeout_s
-                while frame.index - done > cfg.window and not stopper.stopped:
-                    inbox.wait(0.05)
-                    while (s := inbox.pop("estimate")) is not None:
-                        try:
-                            done = max(done, int(Estimate.FromString(payload_bytes(s)).frame_index))
-                        except Exception:  # noqa: BLE001
-                            c.add("malformed")
-                    if time.monotonic() > deadline:
-                        log.warning("no estimate for frame %d after %.0f s: going on", done + 1, cfg.consumer_timeout_s)
-                        done = frame.index - cfg.window
-                        c.add("errors")
+                wait_for_estimate(frame.index - cfg.window)
             elif cfg.pace == "realtime":
-                if wall0 is None:
-                    wall0 = time.monotonic() - frame.time
-                delay = wall0 + frame.time - time.monotonic()
+                if clock.wall0 is None:
+                    clock.start(frame.time)
+                if first_time is not None and not source.live and done < 0:
+                    # A file source in real time starts its clock once the tracker has set up
+                    # on the first frame (the template, the services' first calls), as an
+                    # operator marks the target and then tracks: else the set-up's second
+                    # would skip the first 30 frames and lose a fast target.
+                    wait_for_estimate(0)
+                    clock.start(frame.time)
+                delay = clock.wall0 + frame.time - time.monotonic()
                 if delay > 0:
                     stopper.wait(delay)
+                first_time = frame.time if first_time is None else first_time
             if source.live or cfg.pace == "realtime":
                 capture_ns = time.time_ns()
             else:

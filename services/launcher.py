@@ -93,8 +93,12 @@ class Pipeline:
 
     def __init__(self, source: str, init_box, settings: TrackerSettings, out_dir: str | Path = "recordings",
                  frames: int | None = None, pace: str = "consumer", viewer: bool = True, stream: str | None = None,
-                 name: str | None = None, log_dir: str | Path | None = None, shared_memory: bool = True):
+                 name: str | None = None, log_dir: str | Path | None = None, shared_memory: bool = True,
+                 prerender: bool = False):
+        """``prerender``: the ingest service reads or renders every frame before publishing the
+        first (see :class:`common.sources.PrerenderedSource`)."""
         self.source, self.init_box, self.settings = source, tuple(float(v) for v in init_box), settings
+        self.prerender = prerender
         self.frames, self.pace, self.viewer = frames, pace, viewer
         stamp = time.strftime("%Y%m%d-%H%M%S")
         safe = "".join(ch if ch.isalnum() or ch in "-_" else "-" for ch in source.strip("/").split("/")[-1])
@@ -137,7 +141,8 @@ class Pipeline:
                           "versions_json": json.dumps(versions()), "pace": self.pace}
             waits = [s for s in self.services if s != "ingest"]
             cfg.write_text(json.dumps({"source": self.source, "frames": self.frames, "pace": self.pace,
-                                       "wait_for": waits, "run_config": json.dumps(run_config)}))
+                                       "wait_for": waits, "run_config": json.dumps(run_config),
+                                       "prerender": self.prerender}))
             return base + ["--config", str(cfg)]
         return base
 

@@ -100,3 +100,52 @@ def test_synthetic_specs():
     assert f.homography.shape == (3, 3) and f.truth.angle_deg is not None
     with pytest.raises(SourceError, match="synthetic:SEED"):
         open_source("synthetic:abc")
+
+
+def test_prerendered_source_holds_the_same_frames():
+    from common.sources import PrerenderedSource
+
+    live = open_source("synthetic:2", n_frames=6)
+    pre = PrerenderedSource(open_source("synthetic:2", n_frames=6))
+    assert len(pre) == 6 and pre.fps == live.fps and pre.has_truth
+    for i in (0, 3, 5):
+        a, b = live.frame(i), pre.frame(i)
+        assert np.array_equal(a.image, b.image) and np.array_equal(a.homography, b.homography)
+        assert a.truth == b.truth and pre.true_centre(i) == live.true_centre(i)
+    assert [f.index for f in pre] == list(range(6))
+
+
+def test_prerendering_refuses_what_it_cannot_hold():
+    from common.sources import PrerenderedSource, SourceError
+
+    with pytest.raises(SourceError, match="GiB"):
+        PrerenderedSource(open_source("synthetic:2", n_frames=6), max_bytes=1 << 20)
+
+
+def test_realtime_clock_restart_drops_nothing():
+    """The ingest's real-time clock, restarted after a pause (the tracker setting up on frame 0),
+    publishes the next frames on time instead of counting the pause as frames to skip."""
+    import time
+
+    from services.bus import Counters
+    from services.ingest import Clock, frames_to_publish
+
+    src = open_source("synthetic:1", n_frames=30)
+
+    def run(restart: bool) -> tuple[list[int], int]:
+        clock, counters = Clock(), Counters("test")
+        seen = []
+        for frame in frames_to_publish(src, "realtime", counters, clock):
+            seen.append(frame.index)
+            if frame.index == 1:
+                time.sleep(0.5)  # fifteen frames' time
+                if restart:
+                    clock.start(frame.time)
+            if len(seen) == 3:
+                break
+        return seen, counters["dropped"]
+
+    seen, dropped = run(restart=True)
+    assert seen[:2] == [0, 1] and dropped <= 1  # (a frame if rendering the next took over 33 ms)
+    seen, dropped = run(restart=False)  # negative control: the pause counted as late frames
+    assert seen[2] >= 12 and dropped >= 10
