@@ -88,6 +88,12 @@ class RunResult:
                 "returncodes": self.returncodes}
 
 
+NICE = {"viewer": 5}
+"""Services run at a lower priority: the viewer's work is for inspection, and it drops images and
+particle clouds rather than fall behind; the detector and tracker, whose work is the latency,
+come first."""
+
+
 class Pipeline:
     """The processes of one run. Use as a context manager: everything is stopped on exit."""
 
@@ -124,11 +130,12 @@ class Pipeline:
         if service == "router":
             return base + ["--mode", "router", "--listen", f"tcp/127.0.0.1:{self.hub_port}"]
         base += client_args(self.hub_port)
+        if NICE.get(service):
+            base += ["--nice", str(NICE[service])]
         if service == "recorder":
             return base + ["--out", self.mcap] + (["--compression", "none"] if self.incompressible() else [])
         if service == "viewer":
-            # lower priority: its work is for inspection, and it drops images rather than fall behind
-            return base + ["--out", self.rrd, "--nice", "5"]
+            return base + ["--out", self.rrd]
         if service == "tracker":
             cfg = Path(self.tmp.name) / "tracker.json"
             cfg.write_text(json.dumps({"init_box": list(self.init_box), "settings": self.settings.model_dump(mode="json"),
