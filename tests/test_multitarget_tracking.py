@@ -58,7 +58,8 @@ def test_only_elpda_weighs_with_the_re_estimated_r(method):
     scene = PeopleScene(PeopleSceneConfig(n_people=2, n_frames=10), seed=1)
     config = method_config(method, n_particles=30)
     f0 = scene.frame(0)
-    flt = make_filter(config, MultiInit.from_truth(f0.truth.parts, f0.truth.boxes, body_model(10)), HistogramEvidence(f0.image), 3)
+    init = MultiInit.from_truth(f0.truth.parts, f0.truth.boxes, body_model(10))
+    flt = make_filter(config, init, HistogramEvidence(f0.image), 3)
     for i in range(4):
         flt.step(scene.frame(i).time, HistogramEvidence(scene.frame(i).image))
     _, terms = flt.associate(HistogramEvidence(scene.frame(4).image))
