@@ -128,3 +128,36 @@ def test_plain_pda_uses_the_combined_measurement():
     assert got[1] == 0.0 and got[2] < got[0]  # the particle on a measurement is not favoured
     # nothing in the gate: flat
     assert np.all(da.pda_log_likelihood(diff_pred, np.array([1.0, 0.0, 0.0]), np.array([False, False]), x, r) == 0.0)
+
+
+def test_adaptive_gate_searches_its_bounding_box_only_and_finds_the_same_measurements(monkeypatch):
+    from common.multitarget import gating
+    from common.multitarget.appearance import HistogramEvidence
+    from common.multitarget.body import body_model
+    from common.multitarget.config import GateConfig
+    from common.multitarget.state import MultiInit
+    from common.scene.people import PeopleScene, PeopleSceneConfig
+
+    f = PeopleScene(PeopleSceneConfig(n_people=3, n_frames=10), seed=4).frame(3)
+    body = body_model(10)
+    init = MultiInit.from_truth(f.truth.parts, f.truth.boxes, body)
+    ev = HistogramEvidence(f.image)
+    refs = ev.histograms(gating.part_boxes(init.parts, body.box[None] * init.height[:, None, None]).reshape(-1, 4))
+    refs = refs.reshape(3, body.n_parts, -1)
+    parts = init.parts + np.array([3.0, -2.0])  # a prediction a little off the people
+    part_cov = np.broadcast_to(4.0 * np.eye(2), (3, body.n_parts, 2, 2))
+    r_cov = np.broadcast_to(np.diag([9.0, 16.0]), (3, 1, 2, 2))
+    cfg = GateConfig(adaptive=True)
+    asked = []
+    real = ev.similarity
+    monkeypatch.setattr(ev, "similarity", lambda b, r, i: asked.append(len(b)) or real(b, r, i))
+    small = gating.measure(parts, part_cov, r_cov, body.box[None] * init.height[:, None, None], refs, ev, cfg)
+    full_grid = gating._grid
+    monkeypatch.setattr(gating, "_grid", lambda half, stride, reach=None: full_grid(half, stride))
+    full = gating.measure(parts, part_cov, r_cov, body.box[None] * init.height[:, None, None], refs, ev, cfg)
+    assert asked[0] < asked[1] / 3  # the gate (std about 4 px) needs far fewer boxes than the 61x61 px square
+    assert small.valid.sum() > 0
+    for a in ("valid", "volume", "s_cov", "centre"):
+        assert np.array_equal(getattr(small, a), getattr(full, a))
+    assert np.array_equal(small.z[small.valid], full.z[full.valid])
+    assert np.array_equal(small.rho[small.valid], full.rho[full.valid])

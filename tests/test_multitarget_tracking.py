@@ -49,3 +49,26 @@ def test_boxes_place_a_standing_body_on_each_person():
     assert err[:, :2].max() < 9.0 and err.max() < 20.0  # torso and head close; limbs at their rest pose
     with pytest.raises(InitError, match="not inside"):
         MultiInit.from_boxes(np.array([[300.0, 100.0, 100.0, 120.0]]), body, (384, 288))
+
+
+@pytest.mark.parametrize("method", ["epmcmc-elpda", "epmcmc-pda", "jpda-pf"])
+def test_only_elpda_weighs_with_the_re_estimated_r(method):
+    # eq. 13 uses R_k, the covariance the re-estimated gate learns from the innovations; the fixed-gate
+    # baselines keep R = measurement_sigma^2 I
+    scene = PeopleScene(PeopleSceneConfig(n_people=2, n_frames=10), seed=1)
+    config = method_config(method, n_particles=30)
+    f0 = scene.frame(0)
+    init = MultiInit.from_truth(f0.truth.parts, f0.truth.boxes, body_model(10))
+    flt = make_filter(config, init, HistogramEvidence(f0.image), 3)
+    for i in range(4):
+        flt.step(scene.frame(i).time, HistogramEvidence(scene.frame(i).image))
+    _, terms = flt.associate(HistogramEvidence(scene.frame(4).image))
+    fixed = config.association_model.measurement_sigma**2 * np.eye(2)
+    if method == "epmcmc-elpda":
+        assert np.array_equal(terms.r_cov, flt.r_cov)
+        assert not np.allclose(terms.r_cov, fixed)  # R_k has moved away from the starting gate in 4 frames
+        off = method_config(method, n_particles=30, gate=config.gate.model_copy(update={"r_in_likelihood": False}))
+        flt.config = off
+        assert np.allclose(flt.associate(HistogramEvidence(scene.frame(4).image))[1].r_cov, fixed)
+    else:
+        assert np.allclose(terms.r_cov, fixed)

@@ -23,6 +23,10 @@ Expected likelihood of a particle x (eq. 13, prior proposal so the q terms cance
     p(z | x) = beta_0 V^{-m} + sum_j beta_j V^{-(m-1)} P_G^{-1} N(z_j; h(x), R)
              ∝ beta_0 / V + P_G^{-1} sum_j beta_j N(z_j; h(x), R)      (V^{-(m-1)} is common to all particles)
 
+with R = R_k, the covariance the re-estimated gate learns from the innovations (the paper's
+N(z_k, z^j_k, R_k); ``GateConfig.r_in_likelihood``): sharp while the target is measured close to its
+prediction, wider while it is missed, so the measurement that finds it again reaches the particles.
+
 Plain PDA (the PDAF, the EPMCMC + PDA baseline) instead collapses the gate into one combined
 measurement: nu = sum_j beta_j (z_j - z^), z_c = z^ + nu, with the spread of the innovations
 P~ = sum_j beta_j nu_j nu_j^T - nu nu^T, and weighs a particle by

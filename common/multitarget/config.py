@@ -100,6 +100,11 @@ class GateConfig(_Frozen):
         "(weighted innovations); the gate can then grow up to twice gate_size.",
     )
     min_sigma: float = Field(2.0, gt=0, description="Adaptive gate: floor on the std of R_k, px.")
+    r_in_likelihood: bool = Field(
+        True,
+        description="Adaptive gate: the expected likelihood (eq. 13) uses the re-estimated R_k as the "
+        "measurement covariance (the paper's N(z_k, z_j, R_k)); False: the fixed measurement_sigma^2 I.",
+    )
     stride: int = Field(2, ge=1, le=16, description="Spacing of the candidate grid searched for measurements, px.")
     max_measurements: int = Field(6, ge=1, le=16, description="At most this many measurements (the best peaks) per gate.")
     min_similarity: float = Field(
@@ -116,7 +121,11 @@ class AssociationConfig(_Frozen):
         2e-3, gt=0,
         description="Poisson clutter density lambda, measurements per pixel^2: mu_F(m) = Poisson(m; lambda V).",
     )
-    measurement_sigma: float = Field(3.0, gt=0, description="Std of a measurement about the part centre, px (R = sigma^2 I).")
+    measurement_sigma: float = Field(
+        3.0, gt=0,
+        description="Std of a measurement about the part centre, px (R = sigma^2 I) of the fixed-gate methods "
+        "(PDA, JPDA); ELPDA's eq. 13 uses the re-estimated R_k (GateConfig.r_in_likelihood).",
+    )
     attribute_lambda: float = Field(
         12.0, gt=0,
         description="ELPDA only: the measurement's colour similarity rho is an attribute with density "

@@ -62,11 +62,14 @@ def units(n_parts: int, level: str) -> tuple[np.ndarray, np.ndarray]:
     return np.eye(n_parts, dtype=bool), np.arange(n_parts)
 
 
-def _grid(half: float, stride: int) -> np.ndarray:
+def _grid(half: float, stride: int, reach: tuple[float, float] | None = None) -> np.ndarray:
+    """(gy, gx, 2) offsets k * stride, |k * stride| <= half; with ``reach`` (x, y) only the offsets within
+    one stride beyond it, so that every offset inside the reach keeps all its 3x3 neighbours (the local
+    maxima there are those of the full grid)."""
     k = int(math.floor(half / stride))
-    a = np.arange(-k, k + 1) * float(stride)
-    gx, gy = np.meshgrid(a, a)
-    return np.stack([gx, gy], axis=-1)  # (g, g, 2), row = y
+    kx, ky = (k, k) if reach is None else (min(k, int(math.ceil(r / stride)) + 1) for r in reach)
+    gx, gy = np.meshgrid(np.arange(-kx, kx + 1) * float(stride), np.arange(-ky, ky + 1) * float(stride))
+    return np.stack([gx, gy], axis=-1)  # (gy, gx, 2), row = y
 
 
 def measure(parts: np.ndarray, part_cov: np.ndarray, r_cov: np.ndarray, box_size: np.ndarray,
@@ -80,14 +83,18 @@ def measure(parts: np.ndarray, part_cov: np.ndarray, r_cov: np.ndarray, box_size
     t_n, p_n = parts.shape[:2]
     members, loc = units(p_n, cfg.level)
     q_n = len(loc)
+    gamma = gate_gamma(cfg.p_gate)
     if cfg.adaptive:
         s_cov = part_cov[:, loc] + r_cov
         half = 2.0 * cfg.gate_size
+        # only the ellipses' bounding box is searched: no offset outside it can be inside a gate
+        reach = tuple(float(np.sqrt(gamma * np.max(s_cov[..., i, i]))) for i in range(2))
     else:
         s_cov = np.broadcast_to(cfg.gate_size**2 / gate_gamma(cfg.p_gate) * np.eye(2), (t_n, q_n, 2, 2)).copy()
         half = cfg.gate_size
-    grid = _grid(half, cfg.stride)
-    g = grid.shape[0]
+        reach = None
+    grid = _grid(half, cfg.stride, reach)
+    gy, gx = grid.shape[:2]
     off = grid.reshape(-1, 2)  # (K, 2)
     k_n = len(off)
     pq, pp = np.nonzero(members)  # (unit, part) pairs queried
@@ -97,9 +104,8 @@ def measure(parts: np.ndarray, part_cov: np.ndarray, r_cov: np.ndarray, box_size
     rho = evidence.similarity(boxes.reshape(-1, 4), references.reshape(t_n * p_n, -1), ref_idx.ravel())
     mix = (pq[None, :] == np.arange(q_n)[:, None]) / members.sum(axis=1, keepdims=True)  # (Q, pairs): mean over a unit's parts
     rho = np.einsum("qa,tak->tqk", mix, rho.reshape(t_n, len(pp), k_n))  # (T, Q, K)
-    rg = rho.reshape(t_n, q_n, g, g)
+    rg = rho.reshape(t_n, q_n, gy, gx)
     peaks = (rg >= maximum_filter(rg, size=(1, 1, 3, 3), mode="constant", cval=-1.0)).reshape(t_n, q_n, k_n)
-    gamma = gate_gamma(cfg.p_gate)
     if cfg.adaptive:
         inside = mahalanobis2(off, s_cov[:, :, None]) <= gamma
         volume = np.minimum(math.pi * gamma * np.sqrt(np.linalg.det(s_cov)), (2 * half) ** 2)

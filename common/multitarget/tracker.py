@@ -59,7 +59,8 @@ class MultiTargetFilter:
         self.clock = FrameClock(None)
         g = cfg.gate
         r0 = g.gate_size**2 / gate_gamma(g.p_gate)
-        self.r_cov = np.broadcast_to(r0 * np.eye(2), (t_n, len(units(body.n_parts, g.level)[1]), 2, 2)).copy()
+        q_n = len(units(body.n_parts, g.level)[1])
+        self.r_cov = np.broadcast_to(r0 * np.eye(2), (t_n, q_n, 2, 2)).copy()
 
     @property
     def n_targets(self) -> int:
@@ -103,8 +104,12 @@ class MultiTargetFilter:
         return meas, self._terms(meas.z, meas.valid, beta, meas.volume, meas.centre, cfg.association == "pda")
 
     def _terms(self, z, valid, beta, volume, centre, combined: bool = False) -> AssociationTerms:
-        r = self.config.association_model.measurement_sigma**2 * np.eye(2)  # R, the same for every method
-        return AssociationTerms(z, valid, beta, volume, np.broadcast_to(r, self.r_cov.shape).copy(),
+        g = self.config.gate
+        if g.adaptive and g.r_in_likelihood:
+            r = self.r_cov.copy()
+        else:
+            r = np.broadcast_to(self.config.association_model.measurement_sigma**2 * np.eye(2), self.r_cov.shape).copy()
+        return AssociationTerms(z, valid, beta, volume, r,
                                 self.config.gate.p_gate, units(self.body.n_parts, self.config.gate.level)[1],
                                 centre, combined)  # fmt: skip
 
