@@ -63,7 +63,7 @@ def open_checked(args):
     except (SourceError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     init = args.init
-    if isinstance(init, list):  # the multi-target-capable --init (a list of box lists)
+    if isinstance(init, list) or getattr(args, "init_file", None):  # the multi-target-capable --init / --init-file
         from common.commands.multi_args import single_box
 
         init = single_box(args)
