@@ -156,7 +156,7 @@ class Pipeline:
         """The synthetic scene's frames carry per-pixel sensor noise: LZ4 chunks of them are 0.0%
         smaller, and compressing them was a third of the recorder's CPU in bench --pipeline.
         (Frames of real video keep LZ4: about half the size for a UAV123 frame.)"""
-        return self.source.split(":", 1)[0] in ("synthetic", "people")
+        return self.source.split(":", 1)[0] == "synthetic"
 
     def start(self, service: str) -> subprocess.Popen:
         log = open(self.log_dir / f"{service}.log", "ab")
