@@ -68,6 +68,24 @@ class MultiTracker:
     def step(self, frame_time: float, evidence: PartEvidence) -> MultiTrackState:
         return self.filter.step(frame_time, evidence)
 
+    def prediction_msg(self, frame_index: int, frame_time: float, capture_ns: int | None = None,
+                       step_ms: float = 0.0) -> MultiEstimate:
+        """``observed=False``: the estimate of the particles as a failed step left them (its evidence
+        did not come: the filter predicted, and weighed nothing), so a run without a detector still
+        reports every frame."""
+        from common.tracking import resampling
+
+        f = self.filter
+        parts, vel = f.estimate()
+        t_n = len(parts)
+        state = MultiTrackState(time=float(frame_time), parts=parts, velocity=vel,
+                                n_eff=np.array([resampling.ess(row) for row in f.weights()]),
+                                moved=np.zeros(t_n, bool), gate_area=np.zeros((t_n, 0)),
+                                n_measurements=np.zeros((t_n, 0), np.int64), acceptance={})
+        msg = multi_estimate_msg(frame_index, state, self.run, capture_ns, step_ms)
+        msg.observed = False
+        return msg
+
 
 def track_frames(frames: Iterable, run: MultiRun) -> Iterator[tuple[object, MultiTrackState]]:
     """In-process: each frame's :class:`HistogramEvidence`, the filter started on the first."""
@@ -183,11 +201,11 @@ def offline_retrack_multi(rec, run: MultiRun) -> dict:
         try:
             if tracker is None:
                 tracker = MultiTracker(run, (info.width, info.height), ev)
-            state = tracker.step(info.time_s, ev)
+            new.append(multi_estimate_msg(info.index, tracker.step(info.time_s, ev), run))
         except EvidenceUnavailable:
             stats["unanswered"] += 1
-            continue
-        new.append(multi_estimate_msg(info.index, state, run))
+            if tracker is not None:
+                new.append(tracker.prediction_msg(info.index, info.time_s))
     out = compare_multi(recorded, new)
     out.update(stats)
     out["identical"] = out["identical"] and stats["query_mismatch"] == 0

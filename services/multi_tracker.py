@@ -4,7 +4,9 @@ Runs :class:`common.multitarget_runner.MultiTracker` on the frame infos (no pixe
 never touches them); every question of the filter about a frame's colours goes to the detector
 service as a HISTOGRAMS or SIMILARITY query (:mod:`common.part_evidence_queries`). Publishes one
 ``track/multi_estimate`` per frame. A frame whose evidence does not come (detector down, timeout,
-error reply) is counted in ``errors`` and gets no estimate (the filter has predicted only).
+error reply) is counted in ``errors`` and gets an ``observed=false`` estimate of the particles as
+the filter left them (predicted, not weighed); before the filter has started (no reference
+histograms yet) it gets none.
 Started by :mod:`services.tracker` when its config has ``multi``.
 """
 
@@ -82,16 +84,20 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
                 if tracker is None:
                     tracker = MultiTracker(run, size, ev)
                 state = tracker.step(info.time_s, ev)
+                msg = multi_estimate_msg(int(info.index), state, run, info.capture_ns,
+                                         1e3 * (time.perf_counter() - t0))
             except EvidenceUnavailable as exc:
                 c.add("errors")
-                log.error("frame %d: no evidence (%s): no estimate", info.index, exc)
-                continue
+                if tracker is None:
+                    log.error("frame %d: no reference histograms (%s): not started", info.index, exc)
+                    continue
+                log.warning("frame %d: no evidence (%s): prediction only", info.index, exc)
+                msg = tracker.prediction_msg(int(info.index), info.time_s, info.capture_ns,
+                                             1e3 * (time.perf_counter() - t0))
             except (InitError, ValueError) as exc:
                 c.add("errors")
                 log.error("cannot start on frame %d: %s", info.index, exc)
                 continue
-            step_ms = 1e3 * (time.perf_counter() - t0)
-            msg = multi_estimate_msg(int(info.index), state, run, info.capture_ns, step_ms)
             pub_est.put(msg.SerializeToString(), attachment=ns_attachment(info.capture_ns))
             c.add("published")
             if time.monotonic() - last_status > 1.0:

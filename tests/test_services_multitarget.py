@@ -216,3 +216,37 @@ def test_detector_answers_malformed_histogram_queries_with_errors(detector):
         while (s := inbox.pop("status")) is not None:
             status = ServiceStatus.FromString(payload_bytes(s))
     assert status is not None and status.malformed >= 6  # NaN, sizes, bins, ref_index, config, unknown frame
+
+
+def test_detector_killed_and_restarted_multi(tmp_path):
+    """Without the detector the multi-target tracker reports every frame as a prediction
+    (``observed`` false) and weighs again once a new detector is up; nothing stops."""
+    import signal
+
+    from common.settings import TrackerSettings
+
+    frames = 16
+    events = []
+
+    def inject(pipe, est):
+        if est.frame_index >= 4 and not events:
+            pipe.kill("detector")
+            events.append(("killed", est.frame_index))
+        elif len(events) == 1 and est.frame_index >= events[0][1] + 3:
+            pipe.procs["ingest"].send_signal(signal.SIGSTOP)  # the outage lasts a few frames
+            pipe.start("detector")
+            assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), ["detector"], 120)
+            events.append(("restarted", est.frame_index))
+            pipe.procs["ingest"].send_signal(signal.SIGCONT)
+
+    run = MultiRun.make("epmcmc-elpda", open_source(SOURCE, n_frames=frames).person_boxes(), n_parts=PARTS,
+                        particles=PARTICLES)
+    with Pipeline(SOURCE, None, TrackerSettings(), out_dir=tmp_path, frames=frames, viewer=False, log_dir=tmp_path,
+                  multi=run) as pipe:
+        result = pipe.run(progress=False, timeout=300, on_estimate=inject)
+    assert [e[0] for e in events] == ["killed", "restarted"]
+    ests = sorted(read_recording(result.mcap).decoded("track/multi_estimate"), key=lambda e: e.frame_index)
+    assert [e.frame_index for e in ests] == list(range(frames))
+    unobserved = [e.frame_index for e in ests if not e.observed]
+    assert unobserved and min(unobserved) >= 4 and ests[-1].observed
+    assert result.returncodes["tracker"] == 0 and result.returncodes["recorder"] == 0
