@@ -31,7 +31,8 @@ Entity paths::
 
 Multi-target runs (``track/multi_estimate``; the people scene's part truth in ``frame/info``)::
 
-    camera/targets/<t>/parts       Points2D, target t's part centres in its identity colour (labels: part names)
+    camera/targets/<t>/parts       Points2D, target t's part centres in its identity colour (labels: part
+                                   names; grey for a frame predicted only)
     camera/targets/<t>/skeleton    LineStrips2D, the body model's neighbour graph (child -> parent)
     camera/people_truth/<k>/parts, camera/people_truth/<k>/skeleton   person k's true parts (10-part
                                    model) in a light version of identity colour k
@@ -372,7 +373,7 @@ class RunLogger:
         names = list(msg.part_names) if len(msg.part_names) == p_n else None
         self._set_time(index, capture_ns)
         for t in range(t_n):
-            colour = identity_colour(t)
+            colour = identity_colour(t) if msg.observed else GREY  # grey: predicted only (no evidence)
             self.rec.log(f"camera/targets/{t}/parts", rr.Points2D(
                 pos[t], colors=colour, radii=rr.Radius.ui_points(4.0),
                 labels=[f"{t}:{n}" for n in names] if names else None, show_labels=False))
