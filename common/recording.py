@@ -1,5 +1,8 @@
 """Reading PolarTrack MCAP recordings, and re-running the tracker offline from recorded replies.
 
+Multi-target recordings (``multi_json`` in the run metadata) are re-run by
+:func:`common.multitarget_runner.offline_retrack_multi` from their recorded part-evidence replies.
+
 ``offline_retrack`` rebuilds the tracker from the recorded run configuration and steps it over
 the recorded frame infos (and images, when it stabilises); every query it makes is checked
 against the recorded query (same kind, frame, factor, template version and hypotheses, bit for
@@ -114,6 +117,10 @@ def offline_retrack(path: str) -> dict:
 
     rec = read_recording(path)
     run = rec.run
+    if run.get("multi_json"):
+        from common.multitarget_runner import MultiRun, offline_retrack_multi
+
+        return offline_retrack_multi(rec, MultiRun.from_json(run["multi_json"]))
     settings = TrackerSettings.model_validate_json(run["settings_json"])
     init_box = tuple(json.loads(run["init_box"]))
     stats = {"unanswered": 0, "query_mismatch": 0}

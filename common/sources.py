@@ -9,7 +9,10 @@ Source strings (the ``SOURCE`` argument of the commands):
 - a folder with ``img/*.jpg`` and ``groundtruth_rect.txt`` (UAV123/OTB format, ``x,y,w,h`` per
   line, ``NaN`` where the target is not visible); a folder of images without ground truth;
 - a video file readable by OpenCV;
-- ``camera:N``: live camera device N (real-time: frames are timestamped on capture).
+- ``camera:N``: live camera device N (real-time: frames are timestamped on capture);
+- ``people``, ``people:SEED`` or ``people:SEED:PEOPLE``: the synthetic people scene
+  (:mod:`common.scene.people`, 3 people unless PEOPLE says otherwise) with per-part ground truth
+  (``people_truth(i)``); ``n_frames`` (at least 10) sets the scene's length, as ``track-multi``.
 """
 
 from __future__ import annotations
@@ -290,6 +293,51 @@ class PrerenderedSource(Source):
         yield from self.frames
 
 
+class PeopleSource(Source):
+    """The synthetic people scene (several walking people, per-part ground truth)."""
+
+    def __init__(self, seed: int = 0, n_people: int = 3, n_frames: int | None = None):
+        from common.scene.people import PeopleScene, PeopleSceneConfig
+
+        cfg = PeopleSceneConfig(n_people=n_people, **({"n_frames": n_frames} if n_frames else {}))
+        self.scene = PeopleScene(cfg, seed=seed)
+        self.seed, self.n_people = seed, n_people
+        self.name = f"people-{seed}"
+        self.fps = float(cfg.fps)
+
+    def __len__(self) -> int:
+        return len(self.scene)
+
+    def frame(self, i: int) -> Frame:
+        f = self.scene.frame(i)
+        return Frame(index=i, time=float(f.time), image=f.image)
+
+    def people_truth(self, i: int):
+        """:class:`common.scene.people.PeopleTruth` of frame i (10 part centres of every person, boxes)."""
+        return self.scene.frame(i).truth
+
+    def person_boxes(self) -> np.ndarray:
+        """(people, 4) x, y, w, h boxes of the first frame (the default initialisation)."""
+        return np.asarray(self.scene.frame(0).truth.boxes, float)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self.frame(i)
+
+
+def open_people(spec: str, n_frames: int | None = None) -> PeopleSource:
+    parts = spec.split(":")[1:]
+    try:
+        seed = int(parts[0]) if parts and parts[0] else 0
+        people = int(parts[1]) if len(parts) > 1 else 3
+        if len(parts) > 2:
+            raise ValueError("too many fields")
+        return PeopleSource(seed, people, n_frames)
+    except ValueError as exc:
+        raise SourceError(f"bad synthetic people source {spec!r} ({exc}); use people, people:SEED or "
+                          f"people:SEED:PEOPLE (PEOPLE 1..5, at least 10 frames)") from None
+
+
 def open_source(spec: str, n_frames: int | None = None) -> Source:
     """Open a source from its string (see the module docstring)."""
     spec = str(spec)
@@ -312,6 +360,8 @@ def open_source(spec: str, n_frames: int | None = None) -> Source:
             except ValueError as exc:
                 raise SourceError(f"bad synthetic source {spec!r}: {exc}") from None
         return SyntheticSource(seed=seed, n_frames=n_frames, config=config)
+    if spec == "people" or spec.startswith("people:"):
+        return open_people(spec, n_frames)
     if spec.startswith("camera:"):
         try:
             return CameraSource(int(spec.partition(":")[2]), max_frames=n_frames)

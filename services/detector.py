@@ -2,7 +2,9 @@
 
 Holds the last few frames and the recent templates (by version); answers "frame F, these N
 hypotheses, at resampling factor k" with scores, the template query of the first frame, and the
-template adaptation's PEAK (refined angle, score and P-matrix at one point). Each query is
+template adaptation's PEAK (refined angle, score and P-matrix at one point), and the multi-target
+filters' part-evidence questions (HISTOGRAMS, SIMILARITY: :mod:`common.part_evidence_queries`,
+one integral histogram per frame). Each query is
 answered with the same functions an in-process run calls (:mod:`common.detector.client`), on
 the same kept per-frame observation (regions prepared once per client and frame), so the
 numbers are bit-identical. Publishes a copy of every query and reply for the recorder (Zenoh
@@ -27,6 +29,7 @@ from common.detector.observation import DetectorObservation
 from common.msgs import ScoreQuery, ScoreReply, pack, unpack
 from common.msgs import Template as TemplateMsg
 from common.msgs.convert import msg_to_template, template_to_msg
+from common.part_evidence_queries import PART_KINDS, EvidenceCache, answer_part_query
 from services import options
 from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, publisher
 from services.frame_images import decode_image
@@ -68,6 +71,8 @@ class DetectorCore:
         """(client, frame, factor, template version) -> the frame's observation, kept so the
         template adaptation's PEAK reuses the region the filter's query prepared (as in-process)."""
         self.counters = Counters("detector")
+        self.evidence = EvidenceCache(self.settings.max_frames)
+        """The frames' integral histograms (multi-target part evidence)."""
 
     def add_frame(self, index: int, image: np.ndarray, time_s: float) -> None:
         self.frames[index] = (image, time_s)
@@ -95,9 +100,13 @@ class DetectorCore:
         rep = ScoreReply(request_id=q.request_id, client=q.client, frame_index=q.frame_index)
         frame = self.frames.get(q.frame_index)
         if frame is None:
+            if q.kind in PART_KINDS:
+                self.counters.add("malformed")
             rep.status, rep.error = ScoreReply.UNKNOWN_FRAME, f"frame {q.frame_index} is not held"
             return rep, None
         image, time_s = frame
+        if q.kind in PART_KINDS:
+            return self.handle_part(q, image, rep), None
         width = WIDTHS.get(q.kind)
         try:
             if width is None:
@@ -163,6 +172,24 @@ class DetectorCore:
         rep.valid = pack(valid, np.uint8)
         rep.score_ms = 1e3 * (time.perf_counter() - t0)
         return rep, None
+
+
+    def handle_part(self, q: ScoreQuery, image: np.ndarray, rep: ScoreReply) -> ScoreReply:
+        """A HISTOGRAMS or SIMILARITY query (never raises: problems become an error status)."""
+        t0 = time.perf_counter()
+        try:
+            answer_part_query(q, image, self.evidence, rep)
+        except ValueError as exc:
+            self.counters.add("malformed")
+            rep.status, rep.error = ScoreReply.BAD_REQUEST, str(exc)
+            return rep
+        except Exception as exc:  # noqa: BLE001 - a service never stops on one bad query
+            log.exception("query %s failed", q.request_id)
+            self.counters.add("errors")
+            rep.status, rep.error = ScoreReply.INTERNAL_ERROR, f"{type(exc).__name__}: {exc}"
+            return rep
+        rep.score_ms = 1e3 * (time.perf_counter() - t0)
+        return rep
 
 
 def warm_up() -> None:
@@ -246,7 +273,7 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
                 drain_images()
             drain_templates()
             # an adapted template travels on the template key: the query asking for it may overtake it
-            while (q.kind != ScoreQuery.TEMPLATE and q.template_version not in core.templates
+            while (q.kind != ScoreQuery.TEMPLATE and q.kind not in PART_KINDS and q.template_version not in core.templates
                    and time.monotonic() < deadline and not stopper.stopped):
                 time.sleep(0.002)
                 drain_templates()

@@ -18,7 +18,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.msgs import Estimate, FrameInfo, Truth
+from common.msgs import Estimate, FrameInfo, MultiEstimate, Truth, pack
 from common.msgs.image_wire import encode_image
 from common.sources import Frame, PrerenderedSource, SourceError, open_source
 from services import options
@@ -44,7 +44,8 @@ class IngestSettings(BaseModel):
                             "reading a recorded video while the run goes on")
 
 
-def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true_centre=None) -> FrameInfo:
+def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true_centre=None,
+               people_truth=None) -> FrameInfo:
     h, w = frame.image.shape[:2]
     info = FrameInfo(index=frame.index, time_s=frame.time, capture_ns=capture_ns, width=w, height=h,
                      source=source_name, total_frames=total)
@@ -60,6 +61,9 @@ def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true
         c = true_centre if true_centre is not None else t.centre
         tr.centre_x, tr.centre_y = c if c is not None else (nan, nan)
         info.truth.CopyFrom(tr)
+    if people_truth is not None:  # the people scene: every person's 10 part centres
+        info.truth_people = len(people_truth.parts)
+        info.truth_parts = pack(people_truth.parts)
     return info
 
 
@@ -119,6 +123,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         pub_info = publisher(session, bus.key("frame/info"))
         pub_status = publisher(session, bus.key("status/ingest"))
         sub = session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate"))
+        sub_multi = session.declare_subscriber(bus.key("track/multi_estimate"), inbox.callback("multi"))
         token = session.liveliness().declare_token(bus.key("alive/ingest"))
         if cfg.wait_for and not wait_for_alive(session, bus, cfg.wait_for, cfg.wait_timeout_s, stopper):
             log.error("services %s not up after %.0f s", cfg.wait_for, cfg.wait_timeout_s)
@@ -142,11 +147,12 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             deadline = time.monotonic() + cfg.consumer_timeout_s
             while done < upto and not stopper.stopped:
                 inbox.wait(0.05)
-                while (s := inbox.pop("estimate")) is not None:
-                    try:
-                        done = max(done, int(Estimate.FromString(payload_bytes(s)).frame_index))
-                    except Exception:  # noqa: BLE001
-                        c.add("malformed")
+                for box, cls in (("estimate", Estimate), ("multi", MultiEstimate)):
+                    while (s := inbox.pop(box)) is not None:
+                        try:
+                            done = max(done, int(cls.FromString(payload_bytes(s)).frame_index))
+                        except Exception:  # noqa: BLE001
+                            c.add("malformed")
                 if time.monotonic() > deadline:
                     log.warning("no estimate for frame %d after %.0f s: going on", done + 1, cfg.consumer_timeout_s)
                     done = upto
@@ -179,8 +185,9 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             last_ns = capture_ns
             att = ns_attachment(capture_ns)
             true_centre = source.true_centre(frame.index) if hasattr(source, "true_centre") else None
+            people = source.people_truth(frame.index) if hasattr(source, "people_truth") else None
             pub_image.put(encode_image(frame.image, capture_ns, str(frame.index)), attachment=att)
-            pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
+            pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre, people).SerializeToString(),
                          attachment=att)
             c.add("published")
             if time.monotonic() - last_status > 1.0:
@@ -194,6 +201,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         time.sleep(0.1)
         token.undeclare()
         sub.undeclare()
+        sub_multi.undeclare()
     return c
 
 

@@ -100,11 +100,15 @@ class Pipeline:
     def __init__(self, source: str, init_box, settings: TrackerSettings, out_dir: str | Path = "recordings",
                  frames: int | None = None, pace: str = "consumer", viewer: bool = True, stream: str | None = None,
                  name: str | None = None, log_dir: str | Path | None = None, shared_memory: bool = True,
-                 prerender: bool = False):
+                 prerender: bool = False, multi=None):
         """``prerender``: the ingest service reads or renders every frame before publishing the
-        first (see :class:`common.sources.PrerenderedSource`)."""
-        self.source, self.init_box, self.settings = source, tuple(float(v) for v in init_box), settings
+        first (see :class:`common.sources.PrerenderedSource`). ``multi``: a
+        :class:`common.multitarget_runner.MultiRun` (multi-target filters; ``init_box`` is then None
+        and ``settings`` only the single-target defaults)."""
+        self.multi = multi
         self.prerender = prerender
+        self.source, self.settings = source, settings
+        self.init_box = None if init_box is None else tuple(float(v) for v in init_box)
         self.frames, self.pace, self.viewer = frames, pace, viewer
         stamp = time.strftime("%Y%m%d-%H%M%S")
         safe = "".join(ch if ch.isalnum() or ch in "-_" else "-" for ch in source.strip("/").split("/")[-1])
@@ -138,14 +142,20 @@ class Pipeline:
             return base + ["--out", self.rrd]
         if service == "tracker":
             cfg = Path(self.tmp.name) / "tracker.json"
-            cfg.write_text(json.dumps({"init_box": list(self.init_box), "settings": self.settings.model_dump(mode="json"),
+            cfg.write_text(json.dumps({"init_box": None if self.init_box is None else list(self.init_box),
+                                       "settings": self.settings.model_dump(mode="json"),
+                                       "multi": None if self.multi is None else self.multi.to_json(),
                                        "skip_stale": self.pace != "consumer"}))
             return base + ["--config", str(cfg)]
         if service == "ingest":
             cfg = Path(self.tmp.name) / "ingest.json"
-            run_config = {"run_id": self.name, "source": self.source, "init_box": list(self.init_box),
-                          "settings_json": self.settings.model_dump_json(), "seed": self.settings.seed,
+            run_config = {"run_id": self.name, "source": self.source,
+                          "init_box": [] if self.init_box is None else list(self.init_box),
+                          "settings_json": self.settings.model_dump_json(),
+                          "seed": self.settings.seed if self.multi is None else self.multi.seed,
                           "versions_json": json.dumps(versions()), "pace": self.pace}
+            if self.multi is not None:
+                run_config["multi_json"] = self.multi.to_json()
             waits = [s for s in self.services if s != "ingest"]
             cfg.write_text(json.dumps({"source": self.source, "frames": self.frames, "pace": self.pace,
                                        "wait_for": waits, "run_config": json.dumps(run_config),
@@ -251,7 +261,8 @@ class Pipeline:
         use it to kill and restart services mid-run)."""
         from tqdm import tqdm
 
-        from common.msgs import Estimate, FrameInfo
+        from common.msgs import Estimate, FrameInfo, MultiEstimate
+        from common.multitarget_runner import msg_positions, people_truth_parts
         from services.bus import Inbox, payload_bytes
 
         self.open()
@@ -259,6 +270,7 @@ class Pipeline:
         session = self.session
         inbox = Inbox()
         truths: dict[int, tuple[float, float, bool]] = {}
+        people: dict[int, np.ndarray] = {}  # multi-target: true part centres of the body model per frame
         errors: dict[int, float] = {}
         t0 = time.monotonic()
         first_t = last_t = None
@@ -273,6 +285,7 @@ class Pipeline:
         self.skipped = 0
         try:
             subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate")),
+                    session.declare_subscriber(bus.key("track/multi_estimate"), inbox.callback("multi")),
                     session.declare_subscriber(bus.key("frame/info"), inbox.callback("info")),
                     session.declare_subscriber(bus.key("status/*"), inbox.callback("status"))]
             for s in [s for s in self.services if s != "ingest"]:
@@ -293,6 +306,10 @@ class Pipeline:
                     if info.HasField("truth") and not info.end_of_stream:
                         t = info.truth
                         truths[info.index] = (t.centre_x, t.centre_y, t.visible)
+                    if self.multi is not None and not info.end_of_stream:
+                        gt = people_truth_parts(info, self.multi.config.n_parts)
+                        if gt is not None:
+                            people[info.index] = gt
                 while (s := inbox.pop("status")) is not None:
                     st = ServiceStatus.FromString(payload_bytes(s))
                     self.statuses[st.service] = st
@@ -310,6 +327,21 @@ class Pipeline:
                         if vis and np.isfinite(cx):
                             errors[e.frame_index] = float(np.hypot(e.x - cx, e.y - cy))
                     errors.setdefault(e.frame_index, float("nan"))
+                    bar.update(1)
+                    if on_estimate is not None:
+                        on_estimate(self, e)
+                while (s := inbox.pop("multi")) is not None:
+                    e = MultiEstimate.FromString(payload_bytes(s))
+                    self.latencies.append(e.latency_ms)
+                    self.step_ms.append(e.step_ms)
+                    now = time.monotonic()
+                    first_t = first_t or now
+                    last_t = now
+                    gt = people.get(e.frame_index)
+                    err = float("nan")
+                    if gt is not None and len(gt) == e.targets:  # targets in the scene's person order
+                        err = float(np.mean(np.linalg.norm(msg_positions(e) - gt, axis=-1)))
+                    errors[e.frame_index] = err
                     bar.update(1)
                     if on_estimate is not None:
                         on_estimate(self, e)

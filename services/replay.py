@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common.msgs import Estimate, FrameInfo
+from common.msgs import Estimate, FrameInfo, MultiEstimate
 from common.recording import compare_estimates, read_recording
 from services.bus import BusConfig, Inbox, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
 from services.launcher import client_args, free_ports, router_config
@@ -47,14 +47,18 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
     run = rec.run
     images = rec.messages.get("frame/image", [])
     infos = [(t, d) for t, d in rec.messages.get("frame/info", [])]
-    recorded = rec.decoded("track/estimate")
+    multi = run.get("multi_json") or None
+    topic, cls = ("track/multi_estimate", MultiEstimate) if multi else ("track/estimate", Estimate)
+    recorded = rec.decoded(topic)
     wanted = {e.frame_index for e in recorded}
     stream = f"retrack{int(time.time() * 1000) % 1000000}"
     hub = free_ports(1)[0]
     tmp = tempfile.TemporaryDirectory(prefix="polartrack-retrack-")
     logs = Path(log_dir or tmp.name)
     cfg = Path(tmp.name) / "tracker.json"
-    cfg.write_text(json.dumps({"init_box": json.loads(run["init_box"]), "settings": json.loads(run["settings_json"])}))
+    init_box = json.loads(run["init_box"]) if run.get("init_box") else None
+    cfg.write_text(json.dumps({"init_box": init_box or None, "settings": json.loads(run["settings_json"]),
+                               "multi": multi}))
     procs = {}
     bus = router_config(hub, stream)
     session = open_session(bus)
@@ -66,7 +70,7 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
         inbox = Inbox()
         new: dict[int, Estimate] = {}
         if session is not None:
-            sub = session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate"))
+            sub = session.declare_subscriber(bus.key(topic), inbox.callback("estimate"))
             if not wait_for_alive(session, bus, ["detector", "tracker"], 60.0):
                 raise RuntimeError("detector/tracker did not start")
             pub_img = publisher(session, bus.key("frame/image"))
@@ -85,7 +89,7 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
                 while last_sent >= 0 and last_sent not in new and time.monotonic() < deadline:
                     inbox.wait(0.1)
                     while (s := inbox.pop("estimate")) is not None:
-                        e = Estimate.FromString(payload_bytes(s))
+                        e = cls.FromString(payload_bytes(s))
                         new[e.frame_index] = e
                 for img in image_by_time.get(t, []):
                     pub_img.put(img, attachment=ns_attachment(t))
@@ -94,10 +98,14 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
             while last_sent >= 0 and last_sent not in new and time.monotonic() < deadline:
                 inbox.wait(0.1)
                 while (s := inbox.pop("estimate")) is not None:
-                    e = Estimate.FromString(payload_bytes(s))
+                    e = cls.FromString(payload_bytes(s))
                     new[e.frame_index] = e
             pub_info.put(FrameInfo(end_of_stream=True, index=last_sent + 1).SerializeToString())
             sub.undeclare()
+        if multi:
+            from common.multitarget_runner import compare_multi
+
+            return compare_multi(recorded, [new[k] for k in sorted(new)])
         return compare_estimates(recorded, [new[k] for k in sorted(new)])
     finally:
         for p in procs.values():

@@ -29,6 +29,16 @@ Entity paths::
     plots/speed, plots/n_eff, plots/step_ms
     run/config                TextDocument (static), log/services TextLog (final service counters)
 
+Multi-target runs (``track/multi_estimate``; the people scene's part truth in ``frame/info``)::
+
+    camera/targets/<t>/parts       Points2D, target t's part centres in its identity colour (labels: part
+                                   names; grey for a frame predicted only)
+    camera/targets/<t>/skeleton    LineStrips2D, the body model's neighbour graph (child -> parent)
+    camera/people_truth/<k>/parts, camera/people_truth/<k>/skeleton   person k's true parts (10-part
+                                   model) in a light version of identity colour k
+    plots/n_eff/target_<t>         N_eff of each population
+    plots/error/target_<t>         mean part-centre error of target t against person t (px)
+
 :func:`mcap_to_rrd` converts a recording (``polartrack view``).
 """
 
@@ -50,6 +60,7 @@ import rerun.blueprint as rrb
 from common.msgs import (
     Estimate,
     FrameInfo,
+    MultiEstimate,
     ParticleCloud,
     RawImage,
     RunConfig,
@@ -87,7 +98,24 @@ _SERIES = {
     "plots/step_ms": ("filter step (ms)", GREY),
 }
 
+IDENTITY = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+            (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+"""Identity colours of the targets (target t: IDENTITY[t % 10]); person k of the truth the same, lighter."""
+
+
+def identity_colour(t: int, light: bool = False) -> tuple[int, int, int]:
+    c = IDENTITY[t % len(IDENTITY)]
+    return tuple(int(v + (255 - v) * 0.55) for v in c) if light else c
+
+
+def skeleton_strips(positions: np.ndarray, parents: np.ndarray) -> list[list[list[float]]]:
+    """(P, 2) part centres and (P,) parents (-1: root) -> one 2-point strip per edge of the graph."""
+    return [[positions[c].tolist(), positions[p].tolist()] for c, p in enumerate(parents)
+            if 0 <= p < len(positions) and np.isfinite(positions[[c, p]]).all()]
+
+
 _KINDS = {
+    "track/multi_estimate": "multi_estimates",
     "frame/image": "images",
     "frame/info": "infos",
     "track/estimate": "estimates",
@@ -164,12 +192,16 @@ class RunLogger:
         self._truth: _Bounded = _Bounded(memory)         # frame index -> (cx, cy)
         self._est: _Bounded = _Bounded(memory)           # frame index -> (map x, y, mmse x, y)
         self._error_done: _Bounded = _Bounded(memory)
+        self._people_truth: _Bounded = _Bounded(memory)  # frame index -> (people, 10, 2) true part centres
+        self._multi: _Bounded = _Bounded(memory)         # frame index -> ((T, P, 2) estimated parts, P)
+        self._multi_error_done: _Bounded = _Bounded(memory)
+        self._targets_drawn = 0
         self._box_size: tuple[float, float] | None = None
         self._truth_drawn = False
         self._lut = matplotlib.colormaps["viridis"](np.linspace(0.0, 1.0, 256), bytes=True)[:, :3]
         self.stats: dict[str, int] = {"messages": 0, "images": 0, "infos": 0, "estimates": 0, "clouds": 0,
                                       "templates": 0, "configs": 0, "statuses": 0, "end_of_stream": 0,
-                                      "malformed": 0, "skipped": 0}
+                                      "malformed": 0, "skipped": 0, "multi_estimates": 0}
         self._now: tuple[int | None, int | None] = (None, None)  # (frame index, capture ns) being logged
         self._series: dict[str, list[tuple[int | None, int | None, float]]] = {}
         self._series_points = 0
@@ -281,6 +313,8 @@ class RunLogger:
         if ns is not None:
             self._ns_by_index[index] = ns
         self._set_time(index, ns)
+        if msg.truth_people:
+            self._people(index, unpack(msg.truth_parts, np.float64, (msg.truth_people, 10, 2)))
         if not msg.HasField("truth"):
             if self._truth_drawn:
                 for p in ("camera/truth", "camera/truth_box", "ground/truth"):
@@ -351,6 +385,59 @@ class RunLogger:
         self._est[index] = (msg.x, msg.y, msg.mmse_x, msg.mmse_y)
         self._centre_error(index)
 
+    def _people(self, index: int, ten: np.ndarray) -> None:
+        """The people scene's truth: every person's 10-part skeleton."""
+        from common.multitarget.body import body_model
+
+        body = body_model(10)
+        parts = body.from_ten(ten)
+        self._people_truth[index] = ten
+        for k, pos in enumerate(parts):
+            colour = identity_colour(k, light=True)
+            self.rec.log(f"camera/people_truth/{k}/parts", rr.Points2D(pos, colors=colour, radii=rr.Radius.ui_points(2.5)))
+            self.rec.log(f"camera/people_truth/{k}/skeleton", rr.LineStrips2D(
+                skeleton_strips(pos, body.parent), colors=colour, radii=rr.Radius.ui_points(1.0)))
+        self._multi_error(index)
+
+    def multi_estimate(self, msg, capture_ns: int | None = None) -> None:
+        """Every target's parts and skeleton in its identity colour, and its N_eff."""
+        index = int(msg.frame_index)
+        t_n, p_n = int(msg.targets), int(msg.parts)
+        pos = unpack(msg.positions, np.float64, (t_n, p_n, 2))
+        parents = unpack(msg.parents, np.int32, (p_n,))
+        n_eff = unpack(msg.n_eff, np.float64, (t_n,))
+        names = list(msg.part_names) if len(msg.part_names) == p_n else None
+        self._set_time(index, capture_ns)
+        for t in range(t_n):
+            colour = identity_colour(t) if msg.observed else GREY  # grey: predicted only (no evidence)
+            self.rec.log(f"camera/targets/{t}/parts", rr.Points2D(
+                pos[t], colors=colour, radii=rr.Radius.ui_points(4.0),
+                labels=[f"{t}:{n}" for n in names] if names else None, show_labels=False))
+            self.rec.log(f"camera/targets/{t}/skeleton", rr.LineStrips2D(
+                skeleton_strips(pos[t], parents), colors=colour, radii=rr.Radius.ui_points(2.0)))
+            self._scalar(f"plots/n_eff/target_{t}", float(n_eff[t]))
+        for t in range(t_n, self._targets_drawn):
+            self.rec.log(f"camera/targets/{t}", rr.Clear(recursive=True))
+        self._targets_drawn = t_n
+        self._scalar("plots/step_ms", msg.step_ms)
+        self._multi[index] = (pos, p_n)
+        self._multi_error(index)
+
+    def _multi_error(self, index: int) -> None:
+        """Mean part-centre error of target t against person t (targets in the scene's person order)."""
+        if index in self._multi_error_done or index not in self._multi or index not in self._people_truth:
+            return
+        from common.multitarget.body import body_model
+
+        pos, p_n = self._multi[index]
+        truth = body_model(p_n).from_ten(self._people_truth[index])
+        if len(truth) != len(pos):
+            return
+        self._set_time(index, None)
+        for t, err in enumerate(np.linalg.norm(pos - truth, axis=-1).mean(axis=-1)):
+            self._scalar(f"plots/error/target_{t}", float(err))
+        self._multi_error_done[index] = True
+
     def particles(self, msg: ParticleCloud, capture_ns: int | None = None) -> None:
         """The cloud over the image and on the ground plane, coloured by normalised weight."""
         n = int(msg.count)
@@ -389,6 +476,12 @@ class RunLogger:
             settings = msg.settings_json
         text = (f"# Run {msg.run_id}\n\n* source: `{msg.source}`\n* seed: {msg.seed}\n* pace: {msg.pace}\n"
                 f"* init box: {list(msg.init_box)}\n\n```json\n{settings}\n```\n")
+        if msg.multi_json:
+            try:
+                multi = json.dumps(json.loads(msg.multi_json), indent=2)
+            except json.JSONDecodeError:
+                multi = msg.multi_json
+            text += f"\n## Multi-target run\n\n```json\n{multi}\n```\n"
         self.rec.log("run/config", rr.TextDocument(text, media_type="text/markdown"), static=True)
 
     def service_status(self, msg: ServiceStatus, capture_ns: int | None = None) -> None:
@@ -415,6 +508,8 @@ class RunLogger:
                 self.frame_info(msg, capture_ns)
             elif cls is Estimate:
                 self.estimate(msg, capture_ns)
+            elif cls is MultiEstimate:
+                self.multi_estimate(msg, capture_ns)
             elif cls is ParticleCloud:
                 self.particles(msg, capture_ns)
             elif cls is Template:

@@ -17,7 +17,7 @@ import argparse
 import logging
 import time
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.detector.template import Template
 from common.detector_queries import QueryDetector
@@ -36,7 +36,10 @@ log = logging.getLogger("polartrack.tracker")
 class TrackerServiceSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    init_box: tuple[float, float, float, float] = Field(description="target box x, y, w, h in the first frame")
+    init_box: tuple[float, float, float, float] | None = Field(
+        None, description="target box x, y, w, h in the first frame (single-target filters)")
+    multi: str | None = Field(None, description="a multi-target run (common.multitarget_runner.MultiRun as JSON: "
+                              "method, config, first-frame person boxes, seed); set: the multi-target mode")
     settings: TrackerSettings = Field(default_factory=TrackerSettings, description="the filter's settings")
     client: str = Field("tracker", description="name in queries (the detector caches regions per client)")
     query_timeout_s: float = Field(2.0, gt=0, description="querier timeout: no reply by then = no observation")
@@ -47,8 +50,20 @@ class TrackerServiceSettings(BaseModel):
     image_timeout_s: float = Field(5.0, gt=0, description="stabilising: how long a frame info waits for its "
                                    "image (a frame whose image never comes is skipped and counted in errors)")
 
+    @model_validator(mode="after")
+    def _one_mode(self):
+        if self.init_box is None and not self.multi:
+            raise ValueError("give init_box (X,Y,W,H of the target in the first frame) or multi (a multi-target run)")
+        return self
+
 
 def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Counters:
+    if cfg.multi:
+        from services.multi_tracker import serve_multi
+
+        return serve_multi(bus, cfg, stopper)
+    if cfg.init_box is None:
+        raise ValueError("the tracker needs init_box (single target) or multi (multi-target)")
     c = Counters("tracker")
     inbox = Inbox()
     st = cfg.settings

@@ -30,6 +30,7 @@ SUBSCRIPTIONS = {
     "frame/info": (1024, 256),
     "frame/image": (8, 2),
     "track/estimate": (1024, 256),
+    "track/multi_estimate": (1024, 256),
     "track/particles": (64, 16),
     "template": (16, 16),
     "run/config": (16, 16),

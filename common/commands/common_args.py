@@ -17,12 +17,27 @@ def box_arg(text: str) -> tuple[float, float, float, float]:
     return vals  # type: ignore[return-value]
 
 
-def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = False) -> None:
+def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = False, multi_target: bool = False) -> None:
+    """``multi_target``: also the multi-target filters (several ``--init`` boxes, ``--init-file``, ``--parts``)."""
     p.add_argument("source", metavar="SOURCE",
-                   help="video file, UAV123-format folder (img/ + groundtruth_rect.txt), camera:N, or synthetic[:SEED]")
-    p.add_argument("--init", type=box_arg, metavar="X,Y,W,H",
-                   help="target box in the first frame (default: the source's ground truth)")
-    if multi_filter:
+                   help="video file, UAV123-format folder (img/ + groundtruth_rect.txt), camera:N, or synthetic[:SEED]"
+                   + (", or people[:SEED] (the synthetic people scene, multi-target filters)" if multi_target else ""))
+    if multi_target:
+        from common.commands.multi_args import MULTI_METHODS, add_multi_arguments, boxes_arg
+
+        p.add_argument("--init", type=boxes_arg, action="append", metavar="X,Y,W,H[;X,Y,W,H]",
+                       help="target box in the first frame (default: the source's ground truth); the "
+                       "multi-target filters take several (';'-separated or repeated)")
+        p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml", *MULTI_METHODS],
+                       help="tracking filter: rbpf, sir, ml (one target) or epmcmc-elpda, epmcmc-pda, jpda-pf "
+                       "(several articulated people)")
+        add_multi_arguments(p)
+    else:
+        p.add_argument("--init", type=box_arg, metavar="X,Y,W,H",
+                       help="target box in the first frame (default: the source's ground truth)")
+    if multi_target:
+        pass
+    elif multi_filter:
         p.add_argument("--filter", default="rbpf", metavar="F[,F...]",
                        help="filters to run side by side: rbpf, sir, ml (comma separated)")
     else:
@@ -48,6 +63,10 @@ def open_checked(args):
     except (SourceError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     init = args.init
+    if isinstance(init, list) or getattr(args, "init_file", None):  # the multi-target-capable --init / --init-file
+        from common.commands.multi_args import single_box
+
+        init = single_box(args)
     if init is None:
         first_truth = None
         try:

@@ -4,6 +4,12 @@ Starts ingest, detector, tracker, recorder and viewer as separate processes on a
 loopback Zenoh network, shows progress, shuts everything down cleanly on Ctrl-C or when the
 source ends, and leaves ``recordings/<time>-<source>.mcap`` and ``.rrd``, printing their paths
 and how well it tracked (against the ground truth, when the source has one).
+
+With a multi-target filter (``--filter epmcmc-elpda|epmcmc-pda|jpda-pf``) the tracker follows
+several articulated people from their first-frame boxes (``--init X,Y,W,H;X,Y,W,H``, repeated
+``--init``, or ``--init-file``; on ``people[:SEED]`` the scene's truth by default), asking the
+detector service for the colour histograms; the mean error is then the mean part-centre error
+against the people scene's truth.
 """
 
 from __future__ import annotations
@@ -11,18 +17,25 @@ from __future__ import annotations
 import argparse
 import json
 
-from common.commands.common_args import apply_overrides, box_arg
+from common.commands.common_args import apply_overrides
 
 HELP = "run the multi-process pipeline (ingest, detector, tracker, recorder, viewer)"
 
 
 def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     if not demo:
+        from common.commands.multi_args import MULTI_METHODS, add_multi_arguments, boxes_arg
+
         p.add_argument("--source", required=True, metavar="SRC",
-                       help="video file, UAV123-format folder, camera:N or synthetic[:SEED]")
-        p.add_argument("--init", type=box_arg, metavar="X,Y,W,H", help="target box in the first frame "
-                       "(default: the source's ground truth)")
-        p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="tracking filter")
+                       help="video file, UAV123-format folder, camera:N, synthetic[:SEED] or people[:SEED] "
+                       "(the synthetic people scene, multi-target filters)")
+        p.add_argument("--init", type=boxes_arg, action="append", metavar="X,Y,W,H[;X,Y,W,H]",
+                       help="target box in the first frame (default: the source's ground truth); the "
+                       "multi-target filters take several (';'-separated or repeated)")
+        p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml", *MULTI_METHODS],
+                       help="tracking filter: rbpf, sir, ml (one target) or epmcmc-elpda, epmcmc-pda, jpda-pf "
+                       "(several articulated people)")
+        add_multi_arguments(p)
         p.add_argument("--particles", type=int, metavar="N", help="particles (rbpf, sir)")
         p.add_argument("--seed", type=int, default=0, help="seed of the filter's generator")
         p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
@@ -36,18 +49,23 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, particles, seed: int) -> int:
+def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, particles, seed: int,
+            multi=None) -> int:
+    """Run the pipeline; ``multi`` (a MultiRun) for the multi-target filters."""
     from common.cli import UsageError
     from common.runner import InitError, check_init_box
     from common.settings import profile_for
     from common.sources import SourceError, open_source
-    from services.launcher import Pipeline
 
     try:
         source = open_source(source_spec, n_frames=args.frames)
         first = next(iter(source))
     except (SourceError, StopIteration) as exc:
         raise UsageError(str(exc) or f"{source_spec}: no frames") from None
+    if multi is not None:
+        from common.settings import TrackerSettings
+
+        return _launch(args, source_spec, None, TrackerSettings(seed=seed), multi)
     if init is None:
         if first.truth is None or first.truth.box is None:
             raise UsageError(f"{source_spec}: no ground truth for the first frame; give --init X,Y,W,H")
@@ -61,8 +79,14 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
     settings = profile_for(source, filter=filter_name, seed=seed, particles=particles)
     if getattr(args, "overrides", None):
         settings = apply_overrides(settings, args.overrides)
+    return _launch(args, source_spec, init, settings, None)
+
+
+def _launch(args, source_spec: str, init, settings, multi) -> int:
+    from services.launcher import Pipeline
+
     with Pipeline(source_spec, init, settings, out_dir=args.out_dir, frames=args.frames, pace=args.pace,
-                  viewer=not args.no_viewer) as pipe:
+                  viewer=not args.no_viewer, multi=multi) as pipe:
         try:
             result = pipe.run(progress=not args.no_progress)
         except KeyboardInterrupt:
@@ -79,6 +103,8 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
         if result.rrd:
             print(f"rerun:     {result.rrd}   (open with: rerun {result.rrd})")
         err = "n/a" if result.mean_err is None else f"{result.mean_err:.2f} px"
+        if multi is not None:
+            err += " (mean part-centre error)"
         print(f"{result.estimates} of {result.frames} frames tracked at {result.fps:.1f} fps; mean error {err}; "
               f"frames lost (error > 20 px): {result.frames_lost if result.frames_lost is not None else 'n/a'}")
     for s, code in failed.items():
@@ -87,4 +113,17 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
 
 
 def run(args: argparse.Namespace) -> int:
-    return execute(args, args.source, args.init, args.filter, args.particles, args.seed)
+    from common.commands.multi_args import MULTI_METHODS, multi_run, single_box, source_spec
+
+    if args.filter in MULTI_METHODS:
+        from common.cli import UsageError
+        from common.sources import SourceError, open_source
+
+        spec = source_spec(args)
+        try:
+            source = open_source(spec, n_frames=args.frames)
+        except (SourceError, ValueError) as exc:
+            raise UsageError(str(exc)) from None
+        run_ = multi_run(args, source, args.seed, args.particles)
+        return execute(args, spec, None, args.filter, args.particles, args.seed, multi=run_)
+    return execute(args, args.source, single_box(args), args.filter, args.particles, args.seed)

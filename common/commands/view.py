@@ -1,7 +1,7 @@
 """Convert a run's MCAP recording to a Rerun recording (.rrd) and optionally open the viewer.
 
 Reads every message the recorder wrote (frames, frame infos with ground truth, estimates,
-particle clouds, template, run config) and logs it on the ``frame`` and ``capture_time``
+particle clouds, multi-target estimates with their skeletons, template, run config) and logs it on the ``frame`` and ``capture_time``
 timelines: the frame with the particles (coloured by weight), the MAP estimate, its track and the
 truth overlaid; the ground plane; and time series of the posterior visibility, centre error,
 orientation, speed and N_eff. Prints the path of the .rrd written. A recording cut short (a
@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, RuntimeError) as exc:  # rerun reports a file it cannot create as RuntimeError
         raise UsageError(f"--out {out}: cannot write ({exc})") from None
     summary = (f"{stats['images']} frames, {stats['estimates']} estimates, {stats['clouds']} particle clouds"
+               + (f", {stats['multi_estimates']} multi-target estimates" if stats.get("multi_estimates") else "")
                + (f", {stats['malformed']} malformed messages skipped" if stats["malformed"] else "")
                + (" (recording ended mid-record: converted up to there)" if stats["truncated"] else ""))
     print(summary, file=sys.stderr)

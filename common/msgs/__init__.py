@@ -13,6 +13,7 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from common.msgs.polartrack.messages_pb2 import (
     Estimate,
     FrameInfo,
+    MultiEstimate,
     ParticleCloud,
     RunConfig,
     ScoreQuery,
@@ -30,6 +31,7 @@ TOPICS: dict[str, type] = {
     "template": Template,
     "track/estimate": Estimate,
     "track/particles": ParticleCloud,
+    "track/multi_estimate": MultiEstimate,
     "run/config": RunConfig,
 }
 """Topic suffix (after ``polartrack/<stream>/``) -> message class. Status topics are
@@ -79,5 +81,5 @@ def msg_to_image(msg: RawImage) -> np.ndarray:
     return np.frombuffer(data, np.uint8).reshape(h, w, 3)
 
 
-__all__ = ["RawImage", "FrameInfo", "Truth", "ScoreQuery", "ScoreReply", "Template", "Estimate", "ParticleCloud",
+__all__ = ["RawImage", "FrameInfo", "Truth", "ScoreQuery", "ScoreReply", "Template", "Estimate", "MultiEstimate", "ParticleCloud",
            "RunConfig", "ServiceStatus", "TOPICS", "message_class", "pack", "unpack", "image_to_msg", "msg_to_image"]

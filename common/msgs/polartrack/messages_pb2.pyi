@@ -30,7 +30,7 @@ class Truth(_message.Message):
     def __init__(self, visible: _Optional[bool] = ..., box_x: _Optional[float] = ..., box_y: _Optional[float] = ..., box_w: _Optional[float] = ..., box_h: _Optional[float] = ..., centre_x: _Optional[float] = ..., centre_y: _Optional[float] = ..., angle_deg: _Optional[float] = ..., visible_fraction: _Optional[float] = ...) -> None: ...
 
 class FrameInfo(_message.Message):
-    __slots__ = ("index", "time_s", "capture_ns", "width", "height", "homography", "truth", "source", "end_of_stream", "total_frames")
+    __slots__ = ("index", "time_s", "capture_ns", "width", "height", "homography", "truth", "source", "end_of_stream", "total_frames", "truth_people", "truth_parts")
     INDEX_FIELD_NUMBER: _ClassVar[int]
     TIME_S_FIELD_NUMBER: _ClassVar[int]
     CAPTURE_NS_FIELD_NUMBER: _ClassVar[int]
@@ -41,6 +41,8 @@ class FrameInfo(_message.Message):
     SOURCE_FIELD_NUMBER: _ClassVar[int]
     END_OF_STREAM_FIELD_NUMBER: _ClassVar[int]
     TOTAL_FRAMES_FIELD_NUMBER: _ClassVar[int]
+    TRUTH_PEOPLE_FIELD_NUMBER: _ClassVar[int]
+    TRUTH_PARTS_FIELD_NUMBER: _ClassVar[int]
     index: int
     time_s: float
     capture_ns: int
@@ -51,20 +53,26 @@ class FrameInfo(_message.Message):
     source: str
     end_of_stream: bool
     total_frames: int
-    def __init__(self, index: _Optional[int] = ..., time_s: _Optional[float] = ..., capture_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., homography: _Optional[_Iterable[float]] = ..., truth: _Optional[_Union[Truth, _Mapping]] = ..., source: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., total_frames: _Optional[int] = ...) -> None: ...
+    truth_people: int
+    truth_parts: bytes
+    def __init__(self, index: _Optional[int] = ..., time_s: _Optional[float] = ..., capture_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., homography: _Optional[_Iterable[float]] = ..., truth: _Optional[_Union[Truth, _Mapping]] = ..., source: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., total_frames: _Optional[int] = ..., truth_people: _Optional[int] = ..., truth_parts: _Optional[bytes] = ...) -> None: ...
 
 class ScoreQuery(_message.Message):
-    __slots__ = ("request_id", "client", "frame_index", "kind", "count", "hypotheses", "template_version", "factor", "one_off")
+    __slots__ = ("request_id", "client", "frame_index", "kind", "count", "hypotheses", "template_version", "factor", "one_off", "histogram_json", "reference_count", "bins", "references", "ref_index")
     class Kind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         AT: _ClassVar[ScoreQuery.Kind]
         GRID: _ClassVar[ScoreQuery.Kind]
         TEMPLATE: _ClassVar[ScoreQuery.Kind]
         PEAK: _ClassVar[ScoreQuery.Kind]
+        HISTOGRAMS: _ClassVar[ScoreQuery.Kind]
+        SIMILARITY: _ClassVar[ScoreQuery.Kind]
     AT: ScoreQuery.Kind
     GRID: ScoreQuery.Kind
     TEMPLATE: ScoreQuery.Kind
     PEAK: ScoreQuery.Kind
+    HISTOGRAMS: ScoreQuery.Kind
+    SIMILARITY: ScoreQuery.Kind
     REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
     CLIENT_FIELD_NUMBER: _ClassVar[int]
     FRAME_INDEX_FIELD_NUMBER: _ClassVar[int]
@@ -74,6 +82,11 @@ class ScoreQuery(_message.Message):
     TEMPLATE_VERSION_FIELD_NUMBER: _ClassVar[int]
     FACTOR_FIELD_NUMBER: _ClassVar[int]
     ONE_OFF_FIELD_NUMBER: _ClassVar[int]
+    HISTOGRAM_JSON_FIELD_NUMBER: _ClassVar[int]
+    REFERENCE_COUNT_FIELD_NUMBER: _ClassVar[int]
+    BINS_FIELD_NUMBER: _ClassVar[int]
+    REFERENCES_FIELD_NUMBER: _ClassVar[int]
+    REF_INDEX_FIELD_NUMBER: _ClassVar[int]
     request_id: int
     client: str
     frame_index: int
@@ -83,10 +96,15 @@ class ScoreQuery(_message.Message):
     template_version: int
     factor: float
     one_off: bool
-    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., kind: _Optional[_Union[ScoreQuery.Kind, str]] = ..., count: _Optional[int] = ..., hypotheses: _Optional[bytes] = ..., template_version: _Optional[int] = ..., factor: _Optional[float] = ..., one_off: _Optional[bool] = ...) -> None: ...
+    histogram_json: str
+    reference_count: int
+    bins: int
+    references: bytes
+    ref_index: bytes
+    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., kind: _Optional[_Union[ScoreQuery.Kind, str]] = ..., count: _Optional[int] = ..., hypotheses: _Optional[bytes] = ..., template_version: _Optional[int] = ..., factor: _Optional[float] = ..., one_off: _Optional[bool] = ..., histogram_json: _Optional[str] = ..., reference_count: _Optional[int] = ..., bins: _Optional[int] = ..., references: _Optional[bytes] = ..., ref_index: _Optional[bytes] = ...) -> None: ...
 
 class ScoreReply(_message.Message):
-    __slots__ = ("request_id", "client", "frame_index", "status", "error", "count", "angles", "scores", "valid", "template", "prepare_ms", "score_ms", "pmatrix", "pmatrix_columns")
+    __slots__ = ("request_id", "client", "frame_index", "status", "error", "count", "angles", "scores", "valid", "template", "prepare_ms", "score_ms", "pmatrix", "pmatrix_columns", "dtype", "bins")
     class Status(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         OK: _ClassVar[ScoreReply.Status]
@@ -113,6 +131,8 @@ class ScoreReply(_message.Message):
     SCORE_MS_FIELD_NUMBER: _ClassVar[int]
     PMATRIX_FIELD_NUMBER: _ClassVar[int]
     PMATRIX_COLUMNS_FIELD_NUMBER: _ClassVar[int]
+    DTYPE_FIELD_NUMBER: _ClassVar[int]
+    BINS_FIELD_NUMBER: _ClassVar[int]
     request_id: int
     client: str
     frame_index: int
@@ -127,7 +147,9 @@ class ScoreReply(_message.Message):
     score_ms: float
     pmatrix: bytes
     pmatrix_columns: int
-    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., status: _Optional[_Union[ScoreReply.Status, str]] = ..., error: _Optional[str] = ..., count: _Optional[int] = ..., angles: _Optional[int] = ..., scores: _Optional[bytes] = ..., valid: _Optional[bytes] = ..., template: _Optional[_Union[Template, _Mapping]] = ..., prepare_ms: _Optional[float] = ..., score_ms: _Optional[float] = ..., pmatrix: _Optional[bytes] = ..., pmatrix_columns: _Optional[int] = ...) -> None: ...
+    dtype: str
+    bins: int
+    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., status: _Optional[_Union[ScoreReply.Status, str]] = ..., error: _Optional[str] = ..., count: _Optional[int] = ..., angles: _Optional[int] = ..., scores: _Optional[bytes] = ..., valid: _Optional[bytes] = ..., template: _Optional[_Union[Template, _Mapping]] = ..., prepare_ms: _Optional[float] = ..., score_ms: _Optional[float] = ..., pmatrix: _Optional[bytes] = ..., pmatrix_columns: _Optional[int] = ..., dtype: _Optional[str] = ..., bins: _Optional[int] = ...) -> None: ...
 
 class Template(_message.Message):
     __slots__ = ("version", "rows", "columns", "pmatrix", "centre_x", "centre_y", "box", "frame_index")
@@ -193,6 +215,53 @@ class Estimate(_message.Message):
     latency_ms: float
     def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., observed: _Optional[bool] = ..., filter: _Optional[str] = ..., x: _Optional[float] = ..., y: _Optional[float] = ..., theta_deg: _Optional[float] = ..., p_visible: _Optional[float] = ..., world_x: _Optional[float] = ..., world_y: _Optional[float] = ..., vx: _Optional[float] = ..., vy: _Optional[float] = ..., speed: _Optional[float] = ..., mmse_x: _Optional[float] = ..., mmse_y: _Optional[float] = ..., n_eff: _Optional[float] = ..., resampled: _Optional[bool] = ..., frames_skipped: _Optional[int] = ..., step_ms: _Optional[float] = ..., latency_ms: _Optional[float] = ...) -> None: ...
 
+class MultiEstimate(_message.Message):
+    __slots__ = ("frame_index", "time_s", "filter", "targets", "parts", "part_names", "positions", "velocities", "n_eff", "moved", "units", "gate_area", "n_measurements", "acceptance", "parents", "observed", "step_ms", "latency_ms")
+    class AcceptanceEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: float
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[float] = ...) -> None: ...
+    FRAME_INDEX_FIELD_NUMBER: _ClassVar[int]
+    TIME_S_FIELD_NUMBER: _ClassVar[int]
+    FILTER_FIELD_NUMBER: _ClassVar[int]
+    TARGETS_FIELD_NUMBER: _ClassVar[int]
+    PARTS_FIELD_NUMBER: _ClassVar[int]
+    PART_NAMES_FIELD_NUMBER: _ClassVar[int]
+    POSITIONS_FIELD_NUMBER: _ClassVar[int]
+    VELOCITIES_FIELD_NUMBER: _ClassVar[int]
+    N_EFF_FIELD_NUMBER: _ClassVar[int]
+    MOVED_FIELD_NUMBER: _ClassVar[int]
+    UNITS_FIELD_NUMBER: _ClassVar[int]
+    GATE_AREA_FIELD_NUMBER: _ClassVar[int]
+    N_MEASUREMENTS_FIELD_NUMBER: _ClassVar[int]
+    ACCEPTANCE_FIELD_NUMBER: _ClassVar[int]
+    PARENTS_FIELD_NUMBER: _ClassVar[int]
+    OBSERVED_FIELD_NUMBER: _ClassVar[int]
+    STEP_MS_FIELD_NUMBER: _ClassVar[int]
+    LATENCY_MS_FIELD_NUMBER: _ClassVar[int]
+    frame_index: int
+    time_s: float
+    filter: str
+    targets: int
+    parts: int
+    part_names: _containers.RepeatedScalarFieldContainer[str]
+    positions: bytes
+    velocities: bytes
+    n_eff: bytes
+    moved: bytes
+    units: int
+    gate_area: bytes
+    n_measurements: bytes
+    acceptance: _containers.ScalarMap[str, float]
+    parents: bytes
+    observed: bool
+    step_ms: float
+    latency_ms: float
+    def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., filter: _Optional[str] = ..., targets: _Optional[int] = ..., parts: _Optional[int] = ..., part_names: _Optional[_Iterable[str]] = ..., positions: _Optional[bytes] = ..., velocities: _Optional[bytes] = ..., n_eff: _Optional[bytes] = ..., moved: _Optional[bytes] = ..., units: _Optional[int] = ..., gate_area: _Optional[bytes] = ..., n_measurements: _Optional[bytes] = ..., acceptance: _Optional[_Mapping[str, float]] = ..., parents: _Optional[bytes] = ..., observed: _Optional[bool] = ..., step_ms: _Optional[float] = ..., latency_ms: _Optional[float] = ...) -> None: ...
+
 class ParticleCloud(_message.Message):
     __slots__ = ("frame_index", "time_s", "count", "particles", "image_xy", "weights", "p_visible")
     FRAME_INDEX_FIELD_NUMBER: _ClassVar[int]
@@ -212,7 +281,7 @@ class ParticleCloud(_message.Message):
     def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., count: _Optional[int] = ..., particles: _Optional[bytes] = ..., image_xy: _Optional[bytes] = ..., weights: _Optional[bytes] = ..., p_visible: _Optional[bytes] = ...) -> None: ...
 
 class RunConfig(_message.Message):
-    __slots__ = ("run_id", "source", "init_box", "settings_json", "seed", "versions_json", "start_ns", "pace")
+    __slots__ = ("run_id", "source", "init_box", "settings_json", "seed", "versions_json", "start_ns", "pace", "multi_json")
     RUN_ID_FIELD_NUMBER: _ClassVar[int]
     SOURCE_FIELD_NUMBER: _ClassVar[int]
     INIT_BOX_FIELD_NUMBER: _ClassVar[int]
@@ -221,6 +290,7 @@ class RunConfig(_message.Message):
     VERSIONS_JSON_FIELD_NUMBER: _ClassVar[int]
     START_NS_FIELD_NUMBER: _ClassVar[int]
     PACE_FIELD_NUMBER: _ClassVar[int]
+    MULTI_JSON_FIELD_NUMBER: _ClassVar[int]
     run_id: str
     source: str
     init_box: _containers.RepeatedScalarFieldContainer[float]
@@ -229,7 +299,8 @@ class RunConfig(_message.Message):
     versions_json: str
     start_ns: int
     pace: str
-    def __init__(self, run_id: _Optional[str] = ..., source: _Optional[str] = ..., init_box: _Optional[_Iterable[float]] = ..., settings_json: _Optional[str] = ..., seed: _Optional[int] = ..., versions_json: _Optional[str] = ..., start_ns: _Optional[int] = ..., pace: _Optional[str] = ...) -> None: ...
+    multi_json: str
+    def __init__(self, run_id: _Optional[str] = ..., source: _Optional[str] = ..., init_box: _Optional[_Iterable[float]] = ..., settings_json: _Optional[str] = ..., seed: _Optional[int] = ..., versions_json: _Optional[str] = ..., start_ns: _Optional[int] = ..., pace: _Optional[str] = ..., multi_json: _Optional[str] = ...) -> None: ...
 
 class ServiceStatus(_message.Message):
     __slots__ = ("service", "received", "published", "malformed", "dropped", "errors", "cpu_s", "final")

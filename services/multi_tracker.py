@@ -1,0 +1,110 @@
+"""The tracker service's multi-target mode (``--filter epmcmc-elpda | epmcmc-pda | jpda-pf``).
+
+Runs :class:`common.multitarget_runner.MultiTracker` on the frame infos (no pixels: the tracker
+never touches them); every question of the filter about a frame's colours goes to the detector
+service as a HISTOGRAMS or SIMILARITY query (:mod:`common.part_evidence_queries`). Publishes one
+``track/multi_estimate`` per frame. A frame whose evidence does not come (detector down, timeout,
+error reply) is counted in ``errors`` and gets an ``observed=false`` estimate of the particles as
+the filter left them (predicted, not weighed); before the filter has started (no reference
+histograms yet) it gets none.
+Started by :mod:`services.tracker` when its config has ``multi``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import time
+
+from common.msgs import FrameInfo, ScoreQuery, ScoreReply
+from common.multitarget import InitError
+from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg
+from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
+from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, payload_bytes, publisher
+
+log = logging.getLogger("polartrack.tracker")
+
+
+def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
+    """``cfg``: :class:`services.tracker.TrackerServiceSettings` with ``multi`` set."""
+    run = MultiRun.from_json(cfg.multi)
+    c = Counters("tracker")
+    inbox = Inbox()
+    ids = itertools.count(1)
+    with open_session(bus) as session:
+        sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
+        querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
+        pub_est = publisher(session, bus.key("track/multi_estimate"))
+        pub_status = publisher(session, bus.key("status/tracker"))
+        token = session.liveliness().declare_token(bus.key("alive/tracker"))
+        presence = Presence(session, bus)
+        if not presence.wait("detector", cfg.detector_wait_s, stopper):
+            log.warning("no detector on the bus after %.0f s", cfg.detector_wait_s)
+
+        def ask(q: ScoreQuery) -> ScoreReply | None:
+            if "detector" not in presence:
+                return None
+            for reply in querier.get(payload=q.SerializeToString()):
+                if reply.ok is not None:
+                    try:
+                        return ScoreReply.FromString(reply.ok.payload.to_bytes())
+                    except Exception as exc:  # noqa: BLE001
+                        c.add("malformed")
+                        log.warning("malformed reply: %s", exc)
+            return None
+
+        tracker = None
+        last_status = time.monotonic()
+        log.info("tracker up (%s, %d targets, %d parts, %d particles)", run.method, len(run.boxes),
+                 run.config.n_parts, run.config.n_particles)
+        while not stopper.stopped:
+            if not inbox.wait(0.2):
+                continue
+            sample = inbox.pop("info")
+            if sample is None:
+                continue
+            if cfg.skip_stale:
+                while inbox.pending("info") and not stopper.stopped:
+                    sample = inbox.pop("info")
+                    c.add("dropped")
+            c.add("received")
+            try:
+                info = FrameInfo.FromString(payload_bytes(sample))
+            except Exception as exc:  # noqa: BLE001
+                c.add("malformed")
+                log.warning("malformed frame info: %s", exc)
+                continue
+            if info.end_of_stream:
+                log.info("end of stream after %d frames", info.index)
+                break
+            size = (int(info.width), int(info.height))
+            ev = QueryPartEvidence(ask, cfg.client, int(info.index), size, run.config.histogram, ids)
+            t0 = time.perf_counter()
+            try:
+                if tracker is None:
+                    tracker = MultiTracker(run, size, ev)
+                state = tracker.step(info.time_s, ev)
+                msg = multi_estimate_msg(int(info.index), state, run, info.capture_ns,
+                                         1e3 * (time.perf_counter() - t0))
+            except EvidenceUnavailable as exc:
+                c.add("errors")
+                if tracker is None:
+                    log.error("frame %d: no reference histograms (%s): not started", info.index, exc)
+                    continue
+                log.warning("frame %d: no evidence (%s): prediction only", info.index, exc)
+                msg = tracker.prediction_msg(int(info.index), info.time_s, info.capture_ns,
+                                             1e3 * (time.perf_counter() - t0))
+            except (InitError, ValueError) as exc:
+                c.add("errors")
+                log.error("cannot start on frame %d: %s", info.index, exc)
+                continue
+            pub_est.put(msg.SerializeToString(), attachment=ns_attachment(info.capture_ns))
+            c.add("published")
+            if time.monotonic() - last_status > 1.0:
+                pub_status.put(c.status().SerializeToString())
+                last_status = time.monotonic()
+        pub_status.put(c.status(final=True).SerializeToString())
+        presence.close()
+        token.undeclare()
+        sub.undeclare()
+    return c

@@ -1,0 +1,105 @@
+"""``run`` / ``track`` with the multi-target filters: arguments, the people source, and the in-process
+``track`` equal to ``track-multi``; the part-evidence queries answered by the detector core equal the
+in-process evidence, bit for bit (no processes here)."""
+
+import argparse
+import csv
+
+import numpy as np
+import pytest
+
+from common.cli import main
+from common.commands.multi_args import boxes_arg
+from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg, same_multi_estimate, track_frames
+from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
+from common.sources import PeopleSource, SourceError, open_source
+from services.detector import DetectorCore
+
+
+def test_boxes_arg():
+    assert boxes_arg("1,2,3,4") == [(1.0, 2.0, 3.0, 4.0)]
+    assert boxes_arg("1,2,3,4;5,6,7,8") == [(1.0, 2.0, 3.0, 4.0), (5.0, 6.0, 7.0, 8.0)]
+    with pytest.raises(argparse.ArgumentTypeError):
+        boxes_arg("1,2,3;4")
+
+
+def test_people_source():
+    src = open_source("people:3", n_frames=12)
+    assert isinstance(src, PeopleSource) and len(src) == 12 and src.n_people == 3
+    assert open_source("people:3:2").n_people == 2
+    assert src.person_boxes().shape == (3, 4)
+    assert src.people_truth(0).parts.shape == (3, 10, 2)
+    for bad in ("people:x", "people:1:9", "people:1:2:3"):
+        with pytest.raises(SourceError):
+            open_source(bad)
+
+
+def _rows(path):
+    with open(path) as fh:
+        return list(csv.reader(fh))
+
+
+def test_track_multi_filter_equals_track_multi(tmp_path):
+    a, b = tmp_path / "track.csv", tmp_path / "track_multi.csv"
+    common = ["people:3", "--filter", "epmcmc-pda", "--parts", "2", "--particles", "12", "--frames", "10",
+              "--seed", "5", "--no-progress"]
+    assert main(["track", *common, "--out", str(a)]) == 0
+    assert main(["track-multi", *common, "--out", str(b)]) == 0
+    ra, rb = _rows(a), _rows(b)
+    assert ra[0] == rb[0] == ["frame", "target", "part", "x", "y"] and len(ra) == len(rb) == 1 + 10 * 3 * 2
+    assert all(x[:3] == y[:3] and f"{float(x[3]):.2f}" == y[3] and f"{float(x[4]):.2f}" == y[4]
+               for x, y in zip(ra[1:], rb[1:]))
+
+
+def test_track_multi_filter_with_given_boxes(tmp_path):
+    boxes = open_source("people:0", n_frames=10).person_boxes()
+    text = ";".join(",".join(f"{v:.1f}" for v in b) for b in boxes[:2])
+    out = tmp_path / "two.csv"
+    assert main(["track", "people:0", "--filter", "jpda-pf", "--init", text, "--parts", "1", "--particles", "8",
+                 "--frames", "10", "--no-progress", "--out", str(out)]) == 0
+    rows = _rows(out)[1:]
+    assert {r[1] for r in rows} == {"0", "1"} and len(rows) == 10 * 2
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "--source", "synthetic:1", "--init", "600,300,40,20;700,300,40,20", "--frames", "3"], "tracks one target"),
+    (["track", "synthetic:1", "--init", "600,300,40,20", "--init", "700,300,40,20", "--frames", "3"], "tracks one target"),
+    (["run", "--source", "people:1", "--filter", "epmcmc-elpda", "--init", "1,1,5,5", "--init-file", "x.txt"], "not both"),
+    (["run", "--source", "people:1", "--filter", "epmcmc-elpda", "--init", "1000,1,5,5"], "not inside"),
+    (["track", "synthetic:1", "--filter", "epmcmc-elpda", "--people", "2", "--frames", "3"], "people[:SEED] source only"),
+    (["run", "--source", "synthetic:1", "--filter", "epmcmc-elpda", "--frames", "3"], "--init-file"),
+    (["track", "people:1", "--filter", "epmcmc-elpda", "--init-file", "/nonexistent/boxes.txt"], "no such file"),
+])
+def test_bad_multi_target_arguments(argv, message, capsys):
+    assert main([*argv, "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_query_evidence_answered_by_the_detector_core_is_bit_identical():
+    """A filter fed by QueryPartEvidence whose queries the detector core answers (over serialised
+    messages) gives the in-process estimates bit for bit; a failed reply raises EvidenceUnavailable."""
+    from common.msgs import ScoreQuery, ScoreReply
+
+    src = open_source("people:2", n_frames=10)
+    run = MultiRun.make("epmcmc-elpda", src.person_boxes(), seed=2, n_parts=6, particles=10)
+    core = DetectorCore()
+
+    def ask(q):
+        rep, _ = core.handle(ScoreQuery.FromString(q.SerializeToString()))
+        return ScoreReply.FromString(rep.SerializeToString())
+
+    tracker = None
+    remote = []
+    for f in src:
+        core.add_frame(f.index, f.image, f.time)
+        ev = QueryPartEvidence(ask, "t", f.index, f.size, run.config.histogram)
+        if tracker is None:
+            tracker = MultiTracker(run, f.size, ev)
+        remote.append(multi_estimate_msg(f.index, tracker.step(f.time, ev), run))
+    local = [multi_estimate_msg(f.index, s, run) for f, s in track_frames(open_source("people:2", n_frames=10), run)]
+    assert all(same_multi_estimate(a, b) for a, b in zip(remote, local)) and len(remote) == 10
+    with pytest.raises(EvidenceUnavailable):
+        QueryPartEvidence(ask, "t", 99, f.size).histograms(np.zeros((1, 4)))
+    with pytest.raises(EvidenceUnavailable):
+        QueryPartEvidence(lambda q: None, "t", 0, f.size).histograms(np.zeros((1, 4)))
+    assert core.counters["malformed"] == 1  # the unknown frame
