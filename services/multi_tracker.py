@@ -16,11 +16,12 @@ import itertools
 import logging
 import time
 
-from common.msgs import FrameInfo, ScoreQuery, ScoreReply
+from common.msgs import ScoreQuery, ScoreReply
 from common.multitarget import InitError
 from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
-from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, payload_bytes, publisher
+from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, publisher
+from services.frame_infos import first_reply, next_frame_info
 
 log = logging.getLogger("polartrack.tracker")
 
@@ -44,35 +45,15 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
         def ask(q: ScoreQuery) -> ScoreReply | None:
             if "detector" not in presence:
                 return None
-            for reply in querier.get(payload=q.SerializeToString()):
-                if reply.ok is not None:
-                    try:
-                        return ScoreReply.FromString(reply.ok.payload.to_bytes())
-                    except Exception as exc:  # noqa: BLE001
-                        c.add("malformed")
-                        log.warning("malformed reply: %s", exc)
-            return None
+            return first_reply(querier.get(payload=q.SerializeToString()), c, log)
 
         tracker = None
         last_status = time.monotonic()
         log.info("tracker up (%s, %d targets, %d parts, %d particles)", run.method, len(run.boxes),
                  run.config.n_parts, run.config.n_particles)
         while not stopper.stopped:
-            if not inbox.wait(0.2):
-                continue
-            sample = inbox.pop("info")
-            if sample is None:
-                continue
-            if cfg.skip_stale:
-                while inbox.pending("info") and not stopper.stopped:
-                    sample = inbox.pop("info")
-                    c.add("dropped")
-            c.add("received")
-            try:
-                info = FrameInfo.FromString(payload_bytes(sample))
-            except Exception as exc:  # noqa: BLE001
-                c.add("malformed")
-                log.warning("malformed frame info: %s", exc)
+            info, _ = next_frame_info(inbox, cfg.skip_stale, stopper, c, log)
+            if info is None:
                 continue
             if info.end_of_stream:
                 log.info("end of stream after %d frames", info.index)

@@ -21,13 +21,14 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.detector.template import Template
 from common.detector_queries import QueryDetector
-from common.msgs import FrameInfo, ScoreQuery, ScoreReply
+from common.msgs import ScoreQuery, ScoreReply
 from common.msgs.convert import estimate_msg, info_frame, info_homography, particles_msg, template_to_msg
 from common.runner import InitError, Tracker, stabilises
 from common.settings import TrackerSettings
 from common.tracking.observation import ObservationUnavailable
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, payload_bytes, publisher
+from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, publisher
+from services.frame_infos import first_reply, next_frame_info
 from services.frame_images import FrameImages
 
 log = logging.getLogger("polartrack.tracker")
@@ -90,14 +91,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
             payload = q.SerializeToString()
             replies = (session.get(bus.key("detector/score"), payload=payload, timeout=cfg.template_timeout_s)
                        if q.kind == ScoreQuery.TEMPLATE else querier.get(payload=payload))
-            for reply in replies:
-                if reply.ok is not None:
-                    try:
-                        return ScoreReply.FromString(reply.ok.payload.to_bytes())
-                    except Exception as exc:  # noqa: BLE001
-                        c.add("malformed")
-                        log.warning("malformed reply: %s", exc)
-            return None
+            return first_reply(replies, c, log)
 
         def ask(q: ScoreQuery) -> ScoreReply | None:
             nonlocal template_bytes
@@ -121,29 +115,9 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
         last_status = time.monotonic()
         log.info("tracker up (%s)", st.filter)
         while not stopper.stopped:
-            if not inbox.wait(0.2):
-                continue
-            sample = inbox.pop("info")
-            if sample is None:
-                continue
-            if cfg.skip_stale:
-                while inbox.pending("info") and not stopper.stopped:
-                    newer = inbox.pop("info")
-                    try:
-                        if FrameInfo.FromString(payload_bytes(newer)).end_of_stream:
-                            sample = newer
-                            break
-                    except Exception:  # noqa: BLE001
-                        pass
-                    sample = newer
-                    skipped += 1
-                    c.add("dropped")
-            c.add("received")
-            try:
-                info = FrameInfo.FromString(payload_bytes(sample))
-            except Exception as exc:  # noqa: BLE001
-                c.add("malformed")
-                log.warning("malformed frame info: %s", exc)
+            info, n_skipped = next_frame_info(inbox, cfg.skip_stale, stopper, c, log)
+            skipped += n_skipped
+            if info is None:
                 continue
             if info.end_of_stream:
                 log.info("end of stream after %d frames", info.index)
