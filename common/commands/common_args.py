@@ -23,14 +23,8 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
                    help="video file, UAV123-format folder (img/ + groundtruth_rect.txt), camera:N, or synthetic[:SEED]"
                    + (", or people[:SEED] (the synthetic people scene, multi-target filters)" if multi_target else ""))
     if multi_target:
-        from common.commands.multi_args import MULTI_METHODS, add_multi_arguments, boxes_arg
+        from common.commands.multi_args import add_multi_arguments
 
-        p.add_argument("--init", type=boxes_arg, action="append", metavar="X,Y,W,H[;X,Y,W,H]",
-                       help="target box in the first frame (default: the source's ground truth); the "
-                       "multi-target filters take several (';'-separated or repeated)")
-        p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml", *MULTI_METHODS],
-                       help="tracking filter: rbpf, sir, ml (one target) or epmcmc-elpda, epmcmc-pda, jpda-pf "
-                       "(several articulated people)")
         add_multi_arguments(p)
     else:
         p.add_argument("--init", type=box_arg, metavar="X,Y,W,H",

@@ -26,7 +26,14 @@ def boxes_arg(text: str) -> list[tuple[float, float, float, float]]:
 
 
 def add_multi_arguments(p: argparse.ArgumentParser) -> None:
-    """``--init-file``, ``--parts``, ``--people`` (``--init`` and ``--filter`` are the caller's)."""
+    """``--init`` (one box or several), ``--filter`` (single- and multi-target), ``--init-file``,
+    ``--parts``, ``--people``: what ``run`` and ``track`` take to track one target or several."""
+    p.add_argument("--init", type=boxes_arg, action="append", metavar="X,Y,W,H[;X,Y,W,H]",
+                   help="target box in the first frame (default: the source's ground truth); the "
+                   "multi-target filters take several (';'-separated or repeated)")
+    p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml", *MULTI_METHODS],
+                   help="tracking filter: rbpf, sir, ml (one target) or epmcmc-elpda, epmcmc-pda, jpda-pf "
+                   "(several articulated people)")
     p.add_argument("--init-file", metavar="BOXES.txt",
                    help="multi-target filters: first-frame person boxes, one x,y,w,h per line")
     p.add_argument("--parts", type=int, default=10, choices=[1, 2, 6, 10],

@@ -24,17 +24,11 @@ HELP = "run the multi-process pipeline (ingest, detector, tracker, recorder, vie
 
 def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     if not demo:
-        from common.commands.multi_args import MULTI_METHODS, add_multi_arguments, boxes_arg
+        from common.commands.multi_args import add_multi_arguments
 
         p.add_argument("--source", required=True, metavar="SRC",
                        help="video file, UAV123-format folder, camera:N, synthetic[:SEED] or people[:SEED] "
                        "(the synthetic people scene, multi-target filters)")
-        p.add_argument("--init", type=boxes_arg, action="append", metavar="X,Y,W,H[;X,Y,W,H]",
-                       help="target box in the first frame (default: the source's ground truth); the "
-                       "multi-target filters take several (';'-separated or repeated)")
-        p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml", *MULTI_METHODS],
-                       help="tracking filter: rbpf, sir, ml (one target) or epmcmc-elpda, epmcmc-pda, jpda-pf "
-                       "(several articulated people)")
         add_multi_arguments(p)
         p.add_argument("--particles", type=int, metavar="N", help="particles (rbpf, sir)")
         p.add_argument("--seed", type=int, default=0, help="seed of the filter's generator")
