@@ -28,29 +28,41 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from common.cli import UsageError
-    from common.runner import InitError, track_frames
-    from common.sources import SourceError
-
     from common.commands.multi_args import MULTI_METHODS
+    from common.runner import track_frames
 
     if args.filter in MULTI_METHODS:
         return run_multi(args)
     source, init = open_checked(args)
     settings = settings_for(args, source, args.filter)
+
+    def rows():
+        for frame, state in track_frames(source, init, settings):
+            x, y = point_estimate(state)
+            yield [[frame.index, f"{x:.3f}", f"{y:.3f}", f"{state.map_estimate.theta:.3f}", f"{state.p_visible:.6f}"]]
+
+    return _write_csv(args, ["frame", "x", "y", "theta_deg", "p_visible"], rows(), source)
+
+
+def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int:
+    """Write ``header`` then, per frame, the row lists ``rows`` yields, to ``--out`` or stdout, with
+    a progress bar; a bad initialisation or source met on the way is a usage error."""
+    from tqdm import tqdm
+
+    from common.cli import UsageError
+    from common.multitarget import InitError as MultiInitError
+    from common.runner import InitError
+    from common.sources import SourceError
+
     out = open(args.out, "w", newline="") if args.out else sys.stdout
     try:
         writer = csv.writer(out)
-        writer.writerow(["frame", "x", "y", "theta_deg", "p_visible"])
-        total = len(source) if not source.live else None
-        for frame, state in tqdm(track_frames(source, init, settings), total=total, unit="frame",
-                                 disable=args.no_progress, file=sys.stderr, desc=source.name):
-            x, y = point_estimate(state)
-            writer.writerow([frame.index, f"{x:.3f}", f"{y:.3f}", f"{state.map_estimate.theta:.3f}",
-                             f"{state.p_visible:.6f}"])
-    except (InitError, SourceError) as exc:
+        writer.writerow(header)
+        total = None if source.live else len(source)
+        for frame_rows in tqdm(rows, total=total, unit="frame", disable=args.no_progress, file=sys.stderr,
+                               desc=source.name):
+            writer.writerows(frame_rows)
+    except (InitError, MultiInitError, SourceError) as exc:
         raise UsageError(str(exc)) from None
     finally:
         if args.out:
@@ -60,11 +72,9 @@ def run(args: argparse.Namespace) -> int:
 
 def run_multi(args: argparse.Namespace) -> int:
     """In-process multi-target tracking (:func:`common.multitarget_runner.track_frames`)."""
-    from tqdm import tqdm
-
     from common.cli import UsageError
     from common.commands.multi_args import multi_run, source_spec
-    from common.multitarget import InitError, body_model
+    from common.multitarget import body_model
     from common.multitarget_runner import track_frames as track_multi_frames
     from common.sources import SourceError, open_source
 
@@ -74,19 +84,10 @@ def run_multi(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     run = multi_run(args, source, args.seed, args.particles)
     names = body_model(run.config.n_parts).names
-    out = open(args.out, "w", newline="") if args.out else sys.stdout
-    try:
-        writer = csv.writer(out)
-        writer.writerow(["frame", "target", "part", "x", "y"])
-        total = None if source.live else len(source)
-        for frame, state in tqdm(track_multi_frames(source, run), total=total, unit="frame",
-                                 disable=args.no_progress, file=sys.stderr, desc=source.name):
-            for t, parts in enumerate(state.parts):
-                for name, (x, y) in zip(names, parts):
-                    writer.writerow([frame.index, t, name, f"{x:.6f}", f"{y:.6f}"])
-    except (InitError, SourceError) as exc:
-        raise UsageError(str(exc)) from None
-    finally:
-        if args.out:
-            out.close()
-    return 0
+
+    def rows():
+        for frame, state in track_multi_frames(source, run):
+            yield [[frame.index, t, name, f"{x:.6f}", f"{y:.6f}"]
+                   for t, parts in enumerate(state.parts) for name, (x, y) in zip(names, parts)]
+
+    return _write_csv(args, ["frame", "target", "part", "x", "y"], rows(), source)
