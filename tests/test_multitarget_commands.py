@@ -117,3 +117,18 @@ def test_query_evidence_answered_by_the_detector_core_is_bit_identical():
     with pytest.raises(EvidenceUnavailable):
         QueryPartEvidence(lambda q: None, "t", 0, f.size).histograms(np.zeros((1, 4)))
     assert core.counters["malformed"] == 1  # the unknown frame
+
+
+def test_set_overrides_the_multi_target_config(tmp_path, capsys):
+    """``--set`` reaches the multi-target filter's config: a wider gate changes the estimates (the
+    default run is the negative control); an unknown key is a usage error."""
+    common = ["track", "people:3", "--filter", "epmcmc-pda", "--parts", "2", "--particles", "12", "--frames", "10",
+              "--seed", "5", "--no-progress"]
+    a, b = tmp_path / "default.csv", tmp_path / "wide.csv"
+    assert main([*common, "--out", str(a)]) == 0
+    assert main([*common, "--set", "gate.gate_size=40", "--set", "association_model.p_detect=0.6", "--out", str(b)]) == 0
+    assert _rows(a) != _rows(b) and len(_rows(a)) == len(_rows(b))
+    assert main([*common, "--set", "gate.no_such_knob=1"]) == 2
+    assert "no setting 'gate.no_such_knob'" in capsys.readouterr().err
+    assert main([*common, "--set", "gate.gate_size=-3"]) == 2
+    assert "gate.gate_size" in capsys.readouterr().err

@@ -89,13 +89,13 @@ def settings_for(args, source, filter_name: str):
 
 
 def apply_overrides(settings, overrides: list[str]):
-    """``settings`` with ``KEY=VALUE`` overrides applied (dotted keys, JSON values), validated."""
+    """``settings`` (a pydantic model: the tracker settings, or a multi-target filter's config) with
+    ``KEY=VALUE`` overrides applied (dotted keys, JSON values), validated."""
     import json
 
     from pydantic import ValidationError
 
     from common.cli import UsageError
-    from common.settings import TrackerSettings
 
     data = settings.model_dump()
     for item in overrides:
@@ -116,7 +116,7 @@ def apply_overrides(settings, overrides: list[str]):
             raise UsageError(f"--set {item!r}: no setting {key!r}")
         node[parts[-1]] = value
     try:
-        return TrackerSettings.model_validate(data)
+        return type(settings).model_validate(data)
     except ValidationError as exc:
         err = exc.errors()[0]
         raise UsageError(f"--set: {'.'.join(str(v) for v in err['loc'])}: {err['msg']}") from None

@@ -9,6 +9,7 @@ takes exactly one box.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import numpy as np
 
@@ -119,4 +120,8 @@ def multi_run(args, source, seed: int, particles: int | None):
         MultiInit.from_boxes(np.array(run.boxes), body_model(args.parts), first.size)
     except (InitError, ValueError) as exc:
         raise UsageError(str(exc)) from None
+    if getattr(args, "overrides", None):  # --set KEY=VALUE on the filter's config (common/multitarget/config.py)
+        from common.commands.common_args import apply_overrides
+
+        run = dataclasses.replace(run, config=apply_overrides(run.config, args.overrides))
     return run
