@@ -60,6 +60,8 @@ class Frame:
     homography: np.ndarray | None = None
     """3x3 ground plane (metres) -> image pixels, when the source knows the camera pose."""
     truth: GroundTruth | None = None
+    people: object | None = field(default=None, repr=False)
+    """The people scene's :class:`common.scene.people.PeopleTruth` (every person's part centres)."""
 
     @property
     def size(self) -> tuple[int, int]:
@@ -310,11 +312,7 @@ class PeopleSource(Source):
 
     def frame(self, i: int) -> Frame:
         f = self.scene.frame(i)
-        return Frame(index=i, time=float(f.time), image=f.image)
-
-    def people_truth(self, i: int):
-        """:class:`common.scene.people.PeopleTruth` of frame i (10 part centres of every person, boxes)."""
-        return self.scene.frame(i).truth
+        return Frame(index=i, time=float(f.time), image=f.image, people=f.truth)
 
     def person_boxes(self) -> np.ndarray:
         """(people, 4) x, y, w, h boxes of the first frame (the default initialisation)."""

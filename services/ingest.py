@@ -44,8 +44,7 @@ class IngestSettings(BaseModel):
                             "reading a recorded video while the run goes on")
 
 
-def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true_centre=None,
-               people_truth=None) -> FrameInfo:
+def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true_centre=None) -> FrameInfo:
     h, w = frame.image.shape[:2]
     info = FrameInfo(index=frame.index, time_s=frame.time, capture_ns=capture_ns, width=w, height=h,
                      source=source_name, total_frames=total)
@@ -61,9 +60,9 @@ def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true
         c = true_centre if true_centre is not None else t.centre
         tr.centre_x, tr.centre_y = c if c is not None else (nan, nan)
         info.truth.CopyFrom(tr)
-    if people_truth is not None:  # the people scene: every person's 10 part centres
-        info.truth_people = len(people_truth.parts)
-        info.truth_parts = pack(people_truth.parts)
+    if frame.people is not None:  # the people scene: every person's 10 part centres
+        info.truth_people = len(frame.people.parts)
+        info.truth_parts = pack(frame.people.parts)
     return info
 
 
@@ -138,7 +137,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         last_ns = start_ns
         index = -1
         last_status = time.monotonic()
-        first_time: float | None = None
+        first = True
 
         def wait_for_estimate(upto: int) -> None:
             """Until frame ``upto`` or a later one is estimated (consumer pacing, and the first
@@ -167,7 +166,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             elif cfg.pace == "realtime":
                 if clock.wall0 is None:
                     clock.start(frame.time)
-                if first_time is not None and not source.live and done < 0:
+                if not first and not source.live and done < 0:
                     # A file source in real time starts its clock once the tracker has set up
                     # on the first frame (the template, the services' first calls), as an
                     # operator marks the target and then tracks: else the set-up's second
@@ -177,7 +176,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
                 delay = clock.wall0 + frame.time - time.monotonic()
                 if delay > 0:
                     stopper.wait(delay)
-                first_time = frame.time if first_time is None else first_time
+            first = False
             if source.live or cfg.pace == "realtime":
                 capture_ns = time.time_ns()
             else:
@@ -185,9 +184,8 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             last_ns = capture_ns
             att = ns_attachment(capture_ns)
             true_centre = source.true_centre(frame.index) if hasattr(source, "true_centre") else None
-            people = source.people_truth(frame.index) if hasattr(source, "people_truth") else None
             pub_image.put(encode_image(frame.image, capture_ns, str(frame.index)), attachment=att)
-            pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre, people).SerializeToString(),
+            pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)
             c.add("published")
             if time.monotonic() - last_status > 1.0:

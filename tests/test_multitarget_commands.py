@@ -28,7 +28,7 @@ def test_people_source():
     assert isinstance(src, PeopleSource) and len(src) == 12 and src.n_people == 3
     assert open_source("people:3:2").n_people == 2
     assert src.person_boxes().shape == (3, 4)
-    assert src.people_truth(0).parts.shape == (3, 10, 2)
+    assert src.frame(0).people.parts.shape == (3, 10, 2)  # the per-part truth travels with the frame
     for bad in ("people:x", "people:1:9", "people:1:2:3"):
         with pytest.raises(SourceError):
             open_source(bad)
