@@ -337,7 +337,9 @@ class Pipeline:
                     now = time.monotonic()
                     first_t = first_t or now
                     last_t = now
-                    gt = people.get(e.frame_index)
+                    gt = people.pop(e.frame_index, None)
+                    for k in [k for k in people if k < e.frame_index]:  # skipped frames: bounded
+                        del people[k]
                     err = float("nan")
                     if gt is not None and len(gt) == e.targets:  # targets in the scene's person order
                         err = float(np.mean(np.linalg.norm(msg_positions(e) - gt, axis=-1)))

@@ -177,3 +177,22 @@ def test_jump_candidates_are_weighted_to_the_models_jump_rate():
     w0 = np.exp(jump_mixture_log_weights(r, q, 2.0, 0.0, 0.5))
     assert np.max(w0) <= 2.0 + 1e-9  # p / q <= 1 / (1 - share)
     assert abs(np.sum(w0 * r[:, 0] ** 2) / np.sum(w0) / q[0, 0] - 1) < 0.05  # the plain NCV's variance
+
+
+def test_grid_proposal_without_an_answer_draws_theta_from_its_prior():
+    """With the 'grid' proposal, theta is moved by the observation's score curve; when the detector
+    does not answer, it must still take its random-walk step, the same as with no observation."""
+    from common.tracking.observation import ObservationUnavailable
+
+    class Unanswered(GaussianBumpObservation):
+        def score_grid(self, xy):
+            raise ObservationUnavailable("detector down")
+
+    cfg = RBPFConfig(n_particles=40, orientation_proposal="grid")
+    init = InitialState(x=100.0, y=100.0, vx=5.0, pos_std=1.0, vel_std=1.0, theta_std=2.0, time=0.0)
+    a, b = RBPF(cfg, init, seed=3), RBPF(cfg, init, seed=3)
+    before = a.particles[:, 4].copy()
+    a.step(1 / 30, Unanswered(time=1 / 30, target_xy=(100.0, 100.0)))
+    b.step(1 / 30, None)
+    assert not np.array_equal(a.particles[:, 4], before)  # theta moved
+    assert np.array_equal(a.particles, b.particles)  # exactly as without an observation

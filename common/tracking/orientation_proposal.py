@@ -26,9 +26,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logsumexp
 
+from .observation import N_ANGLES as N_GRID
 from .resampling import draw_per_row
 
-N_GRID = 48
 MAX_HARMONIC = 14
 """Highest angular harmonic of a polar-matching score curve (|h| <= 14: exactly represented by
 48 samples, whose Nyquist limit is 23)."""

@@ -261,10 +261,10 @@ class RaoBlackwellisedParticleFilter:
                 scored = self._score(observation, image_xy)
             except ObservationUnavailable:
                 observation = None  # the detector did not answer: predict only
-        elif cfg.orientation_proposal == "grid" and self._theta_sigma > 0:
-            # no observation: theta from its prior, as the 'prior' proposal would have drawn it
-            self.particles[:, 4] = wrap_degrees(self.particles[:, 4]
-                                                + self._theta_sigma * self.rng.standard_normal(self.n_particles))
+        if scored is None and cfg.orientation_proposal == "grid" and dt > 0:
+            # no observation (none given, or the detector did not answer): theta from its prior,
+            # as the 'prior' proposal would have drawn it in predict
+            self.particles[:, 4] = cfg.orientation.sample(self.particles[:, 4], dt, self.rng)
         if scored is not None:
             scores, joint = scored  # joint: log l_p(v) + log pi^-_p(v)
             log_m = np.logaddexp(joint[:, 0], joint[:, 1])  # log m_p
@@ -324,7 +324,7 @@ class RaoBlackwellisedParticleFilter:
         grid = np.asarray(grid, float)
         valid = np.asarray(valid, bool).reshape(-1)
         if grid.shape != (n, N_ANGLES) or valid.shape != (n,):
-            raise ValueError(f"score_grid returned shapes {grid.shape}, {valid.shape}; expected ({n}, 48)")
+            raise ValueError(f"score_grid returned shapes {grid.shape}, {valid.shape}; expected ({n}, {N_ANGLES})")
         ok = valid & np.all(np.isfinite(grid), axis=1)
         grid = np.where(ok[:, None], np.clip(grid, -1.0, 1.0), 0.0)
         theta, log_m, scores, joint = sample_orientation(grid, self.particles[:, 4], self._theta_sigma,
