@@ -19,20 +19,12 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from common.msgs import MultiEstimate, pack, unpack
-from common.multitarget import (METHODS, HistogramEvidence, MultiInit, MultiTargetConfig, MultiTrackState,
+from common.multitarget import (HistogramEvidence, MultiInit, MultiTargetConfig, MultiTrackState,
                                 PartEvidence, body_model, make_filter, method_config)
-
-MULTI_FILTERS = METHODS
-"""The multi-target ``--filter`` values: epmcmc-elpda, epmcmc-pda, jpda-pf."""
-
-
-def is_multi(filter_name: str) -> bool:
-    return filter_name in MULTI_FILTERS
-
 
 @dataclass(frozen=True)
 class MultiRun:
-    """A multi-target run: ``method`` (a :data:`MULTI_FILTERS` name), its config, the first frame's
+    """A multi-target run: ``method`` (one of :data:`common.multitarget.METHODS`), its config, the first frame's
     person boxes (T, 4) x, y, w, h, and the seed of the filter's generators."""
 
     method: str

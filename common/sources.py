@@ -277,6 +277,8 @@ class PrerenderedSource(Source):
         self.inner = source
         self.name, self.fps = source.name, source.fps
         self.frames = [first] + [source.frame(i) for i in range(1, len(source))]
+        if hasattr(source, "true_centre"):  # only what the inner source can answer
+            self.true_centre = source.true_centre
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -287,9 +289,6 @@ class PrerenderedSource(Source):
 
     def frame(self, i: int) -> Frame:
         return self.frames[i]
-
-    def true_centre(self, i: int):
-        return self.inner.true_centre(i) if hasattr(self.inner, "true_centre") else self.frames[i].truth.centre
 
     def __iter__(self) -> Iterator[Frame]:
         yield from self.frames

@@ -132,3 +132,10 @@ def test_set_overrides_the_multi_target_config(tmp_path, capsys):
     assert "no setting 'gate.no_such_knob'" in capsys.readouterr().err
     assert main([*common, "--set", "gate.gate_size=-3"]) == 2
     assert "gate.gate_size" in capsys.readouterr().err
+
+
+def test_the_cli_names_the_multi_target_filters_as_the_library_does():
+    from common.commands.multi_args import MULTI_METHODS
+    from common.multitarget import METHODS
+
+    assert tuple(MULTI_METHODS) == tuple(METHODS)
