@@ -31,3 +31,17 @@ def test_batched_similarity_equals_direct_histograms():
 def test_bad_image_is_refused():
     with pytest.raises(ValueError, match="uint8 RGB"):
         HistogramEvidence(np.zeros((10, 10), np.uint8))
+
+
+@pytest.mark.parametrize("n_bins", [1, 40, 600])  # 600: past OpenCV's 512 channels, the NumPy path
+def test_integral_histogram_counts_every_box(n_bins):
+    from common.multitarget.appearance import integral_histogram
+
+    rng = np.random.default_rng(n_bins)
+    bins = rng.integers(0, n_bins, (23, 31)).astype(np.int32)
+    ii = integral_histogram(bins, n_bins)
+    assert ii.shape == (24, 32, n_bins) and ii.dtype == np.int32
+    for y0, x0, y1, x1 in [(0, 0, 23, 31), (3, 5, 9, 30), (10, 10, 11, 11), (7, 2, 7, 9)]:
+        want = np.bincount(bins[y0:y1, x0:x1].ravel(), minlength=n_bins)
+        got = ii[y1, x1] - ii[y0, x1] - ii[y1, x0] + ii[y0, x0]
+        assert np.array_equal(got, want)
