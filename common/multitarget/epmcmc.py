@@ -63,23 +63,29 @@ class EPMCMCFilter(MultiTargetFilter):
         self._prior_mean = np.einsum("tn,tnpk->tpk", w, self.particles)
         var = np.einsum("tn,tnpk->tpk", w, (self.particles - self._prior_mean[:, None]) ** 2)
         self._prior_std = np.sqrt(np.maximum(var, self.config.evolution.prior_floor**2))
-        meas, terms, w, n_eff, moved = self.weigh(evidence)
+        meas, terms, ll, w, n_eff, moved = self.weigh(evidence)
         acceptance: dict = {}
         if moved.any():
-            acceptance = self._resample_move(np.flatnonzero(moved), w, evidence, terms)
+            acceptance = self._resample_move(np.flatnonzero(moved), w, ll, evidence, terms)
         return self.finish(frame_time, meas, terms, n_eff, moved, acceptance)
 
-    def _resample_move(self, pops: np.ndarray, w: np.ndarray, evidence: PartEvidence, terms: AssociationTerms) -> dict:
-        """Residual resampling and population-MCMC sweeps (Algorithm 2) of populations ``pops``."""
+    def _resample_move(self, pops: np.ndarray, w: np.ndarray, ll: np.ndarray, evidence: PartEvidence,
+                       terms: AssociationTerms) -> dict:
+        """Residual resampling and population-MCMC sweeps (Algorithm 2) of populations ``pops``;
+        ``ll`` (T, N): the particles' log-likelihoods from :meth:`weigh`, which the resampled copies
+        keep (no second evidence query for them)."""
         ev = self.config.evolution
         n = self.n_particles
         scheme = resampling.get_scheme(self.config.resampling)
+        kept = []
         for t in pops:
-            self.particles[t] = self.particles[t, scheme(w[t], self.rngs["resample"])]
+            idx = scheme(w[t], self.rngs["resample"])
+            self.particles[t] = self.particles[t, idx]
             self.log_w[t] = -np.log(n)
+            kept.append(ll[t, idx])
         rng = self.rngs["mcmc"]
         x = self.particles[pops]
-        lp = self._log_target(x, pops, evidence, terms)
+        lp = np.stack(kept) + self._log_prior(x, pops)  # = self._log_target(x, pops, evidence, terms)
         counts = {k: [0, 0] for k in ("mutation", "crossover", "exchange")}
         for _ in range(ev.mcmc_iterations):
             # (a) mutation, one MH move per particle

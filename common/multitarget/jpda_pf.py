@@ -23,7 +23,7 @@ class JPDAParticleFilter(MultiTargetFilter):
 
     def step(self, frame_time: float, evidence: PartEvidence) -> MultiTrackState:
         self.advance(frame_time)
-        meas, terms, w, n_eff, moved = self.weigh(evidence)
+        meas, terms, _, w, n_eff, moved = self.weigh(evidence)
         state = self.finish(frame_time, meas, terms, n_eff, moved, {})
         scheme = resampling.get_scheme(self.config.resampling)
         for t in np.flatnonzero(moved):

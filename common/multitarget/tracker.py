@@ -139,16 +139,17 @@ class MultiTargetFilter:
                                      self.rngs["motion"])  # fmt: skip
         return dt > 0
 
-    def weigh(self, evidence: PartEvidence) -> tuple[Measurements, AssociationTerms, np.ndarray, np.ndarray, np.ndarray]:
+    def weigh(self, evidence: PartEvidence) -> tuple[Measurements, AssociationTerms, np.ndarray, np.ndarray,
+                                                      np.ndarray, np.ndarray]:
         """Gate, associate and update the log weights by the likelihood; returns the measurements, the
-        association terms, the normalised weights (T, N), the ESS (T,) and which populations fell to
-        the resampling threshold (T,)."""
+        association terms, the log-likelihoods (T, N) of the particles, the normalised weights (T, N),
+        the ESS (T,) and which populations fell to the resampling threshold (T,)."""
         meas, terms = self.associate(evidence)
         ll = self.log_likelihood(self.particles[..., :2], np.arange(self.n_targets), evidence, terms)
         self.log_w = normalise_rows(self.log_w + ll)
         w = self.weights()
         n_eff = np.array([resampling.ess(row) for row in w])
-        return meas, terms, w, n_eff, n_eff <= self.config.evolution.ess_threshold_fraction * self.n_particles
+        return meas, terms, ll, w, n_eff, n_eff <= self.config.evolution.ess_threshold_fraction * self.n_particles
 
     def finish(self, frame_time: float, meas: Measurements, terms: AssociationTerms, n_eff: np.ndarray,
                moved: np.ndarray, acceptance: dict) -> MultiTrackState:
