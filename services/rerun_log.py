@@ -70,6 +70,7 @@ from common.msgs import (
     msg_to_image,
     unpack,
 )
+from common.msgs.image_wire import decode_image
 
 log = logging.getLogger("polartrack.rerun_log")
 
@@ -282,12 +283,14 @@ class RunLogger:
         self._series_points = 0
 
     # ------------------------------------------------------------------ messages
-    def frame_image(self, msg: RawImage, capture_ns: int | None = None, index: int | None = None) -> None:
+    def frame_image(self, msg: RawImage, capture_ns: int | None = None, index: int | None = None,
+                    image: np.ndarray | None = None) -> None:
         """The frame as JPEG at ``camera/image``. The frame index is ``index``, else the image's
-        ``frame_id`` (the ingest service writes the index there), else looked up by capture time."""
+        ``frame_id`` (the ingest service writes the index there), else looked up by capture time.
+        ``image``: the pixels, when ``msg`` was decoded without them (:mod:`common.msgs.image_wire`)."""
         import cv2
 
-        img = msg_to_image(msg)
+        img = msg_to_image(msg) if image is None else image
         if capture_ns is None and msg.HasField("timestamp"):
             capture_ns = msg.timestamp.ToNanoseconds()
         if index is None:
@@ -501,9 +504,10 @@ class RunLogger:
             self.stats["skipped"] += 1
             return False
         try:
-            msg = cls.FromString(data)
-            if cls is RawImage:
-                self.frame_image(msg, capture_ns)
+            msg = None if cls is RawImage else cls.FromString(data)
+            if cls is RawImage:  # the pixels viewed in place, not copied twice through protobuf
+                head, image = decode_image(data)
+                self.frame_image(head, capture_ns, image=image)
             elif cls is FrameInfo:
                 self.frame_info(msg, capture_ns)
             elif cls is Estimate:
