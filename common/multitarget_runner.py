@@ -111,7 +111,7 @@ def msg_positions(m: MultiEstimate) -> np.ndarray:
     return unpack(m.positions, np.float64, (m.targets, m.parts, 2))
 
 
-MULTI_IGNORED = ("step_ms", "latency_ms")
+MULTI_IGNORED = ("step_ms", "latency_ms", "frames_skipped")
 """MultiEstimate fields not compared on replay (timings)."""
 
 
@@ -127,12 +127,9 @@ def same_multi_estimate(a: MultiEstimate, b: MultiEstimate) -> bool:
 
 
 def compare_multi(recorded: list[MultiEstimate], new: list[MultiEstimate]) -> dict:
-    by_frame = {e.frame_index: e for e in recorded}
-    mismatched = [e.frame_index for e in new
-                  if e.frame_index not in by_frame or not same_multi_estimate(by_frame[e.frame_index], e)]
-    missing = sorted(set(by_frame) - {e.frame_index for e in new})
-    return {"identical": not mismatched and not missing and len(new) > 0, "compared": len(new),
-            "recorded": len(recorded), "mismatched": mismatched[:20], "missing": missing[:20]}
+    from common.recording import compare_estimates
+
+    return compare_estimates(recorded, new, same=same_multi_estimate)
 
 
 def people_truth_parts(info, n_parts: int) -> np.ndarray | None:

@@ -69,9 +69,11 @@ def same_estimate(a: Estimate, b: Estimate) -> bool:
     return all(getattr(a, f) == getattr(b, f) for f in COMPARED)
 
 
-def compare_estimates(recorded: list[Estimate], new: list[Estimate]) -> dict:
+def compare_estimates(recorded: list, new: list, same=same_estimate) -> dict:
+    """Frame by frame, the ``new`` estimates against the ``recorded`` ones with ``same`` (Estimate or,
+    with ``same_multi_estimate``, MultiEstimate messages)."""
     by_frame = {e.frame_index: e for e in recorded}
-    mismatched = [e.frame_index for e in new if e.frame_index not in by_frame or not same_estimate(by_frame[e.frame_index], e)]
+    mismatched = [e.frame_index for e in new if e.frame_index not in by_frame or not same(by_frame[e.frame_index], e)]
     missing = sorted(set(by_frame) - {e.frame_index for e in new})
     return {"identical": not mismatched and not missing and len(new) > 0, "compared": len(new),
             "recorded": len(recorded), "mismatched": mismatched[:20], "missing": missing[:20]}

@@ -332,6 +332,7 @@ class Pipeline:
                         on_estimate(self, e)
                 while (s := inbox.pop("multi")) is not None:
                     e = MultiEstimate.FromString(payload_bytes(s))
+                    self.skipped = max(self.skipped, e.frames_skipped)
                     self.latencies.append(e.latency_ms)
                     self.step_ms.append(e.step_ms)
                     now = time.monotonic()

@@ -51,8 +51,10 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
         last_status = time.monotonic()
         log.info("tracker up (%s, %d targets, %d parts, %d particles)", run.method, len(run.boxes),
                  run.config.n_parts, run.config.n_particles)
+        skipped = 0
         while not stopper.stopped:
-            info, _ = next_frame_info(inbox, cfg.skip_stale, stopper, c, log)
+            info, n_skipped = next_frame_info(inbox, cfg.skip_stale, stopper, c, log)
+            skipped += n_skipped
             if info is None:
                 continue
             if info.end_of_stream:
@@ -79,6 +81,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
                 c.add("errors")
                 log.error("cannot start on frame %d: %s", info.index, exc)
                 continue
+            msg.frames_skipped = skipped
             pub_est.put(msg.SerializeToString(), attachment=ns_attachment(info.capture_ns))
             c.add("published")
             if time.monotonic() - last_status > 1.0:

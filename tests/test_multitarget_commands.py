@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from common.cli import main
+from common.msgs import pack
 from common.commands.multi_args import boxes_arg
 from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg, same_multi_estimate, track_frames
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
@@ -139,3 +140,17 @@ def test_the_cli_names_the_multi_target_filters_as_the_library_does():
     from common.multitarget import METHODS
 
     assert tuple(MULTI_METHODS) == tuple(METHODS)
+
+
+def test_replay_compares_estimates_not_transport_counts():
+    """Frames skipped by a live tracker and the timings differ on replay; the estimates must not."""
+    from common.msgs import MultiEstimate
+    from common.multitarget_runner import compare_multi
+
+    a = MultiEstimate(frame_index=3, targets=1, parts=1, positions=pack(np.array([[[1.0, 2.0]]])), frames_skipped=5,
+                      step_ms=30.0)
+    b = MultiEstimate(frame_index=3, targets=1, parts=1, positions=pack(np.array([[[1.0, 2.0]]])), frames_skipped=0,
+                      step_ms=12.0)
+    c = MultiEstimate(frame_index=3, targets=1, parts=1, positions=pack(np.array([[[1.0, 2.0 + 1e-12]]])))
+    assert same_multi_estimate(a, b) and not same_multi_estimate(a, c)
+    assert compare_multi([a], [b])["identical"] and not compare_multi([a], [c])["identical"]

@@ -216,7 +216,7 @@ class Estimate(_message.Message):
     def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., observed: _Optional[bool] = ..., filter: _Optional[str] = ..., x: _Optional[float] = ..., y: _Optional[float] = ..., theta_deg: _Optional[float] = ..., p_visible: _Optional[float] = ..., world_x: _Optional[float] = ..., world_y: _Optional[float] = ..., vx: _Optional[float] = ..., vy: _Optional[float] = ..., speed: _Optional[float] = ..., mmse_x: _Optional[float] = ..., mmse_y: _Optional[float] = ..., n_eff: _Optional[float] = ..., resampled: _Optional[bool] = ..., frames_skipped: _Optional[int] = ..., step_ms: _Optional[float] = ..., latency_ms: _Optional[float] = ...) -> None: ...
 
 class MultiEstimate(_message.Message):
-    __slots__ = ("frame_index", "time_s", "filter", "targets", "parts", "part_names", "positions", "velocities", "n_eff", "moved", "units", "gate_area", "n_measurements", "acceptance", "parents", "observed", "step_ms", "latency_ms")
+    __slots__ = ("frame_index", "time_s", "filter", "targets", "parts", "part_names", "positions", "velocities", "n_eff", "moved", "units", "gate_area", "n_measurements", "acceptance", "parents", "observed", "step_ms", "latency_ms", "frames_skipped")
     class AcceptanceEntry(_message.Message):
         __slots__ = ("key", "value")
         KEY_FIELD_NUMBER: _ClassVar[int]
@@ -242,6 +242,7 @@ class MultiEstimate(_message.Message):
     OBSERVED_FIELD_NUMBER: _ClassVar[int]
     STEP_MS_FIELD_NUMBER: _ClassVar[int]
     LATENCY_MS_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_SKIPPED_FIELD_NUMBER: _ClassVar[int]
     frame_index: int
     time_s: float
     filter: str
@@ -260,7 +261,8 @@ class MultiEstimate(_message.Message):
     observed: bool
     step_ms: float
     latency_ms: float
-    def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., filter: _Optional[str] = ..., targets: _Optional[int] = ..., parts: _Optional[int] = ..., part_names: _Optional[_Iterable[str]] = ..., positions: _Optional[bytes] = ..., velocities: _Optional[bytes] = ..., n_eff: _Optional[bytes] = ..., moved: _Optional[bytes] = ..., units: _Optional[int] = ..., gate_area: _Optional[bytes] = ..., n_measurements: _Optional[bytes] = ..., acceptance: _Optional[_Mapping[str, float]] = ..., parents: _Optional[bytes] = ..., observed: _Optional[bool] = ..., step_ms: _Optional[float] = ..., latency_ms: _Optional[float] = ...) -> None: ...
+    frames_skipped: int
+    def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., filter: _Optional[str] = ..., targets: _Optional[int] = ..., parts: _Optional[int] = ..., part_names: _Optional[_Iterable[str]] = ..., positions: _Optional[bytes] = ..., velocities: _Optional[bytes] = ..., n_eff: _Optional[bytes] = ..., moved: _Optional[bytes] = ..., units: _Optional[int] = ..., gate_area: _Optional[bytes] = ..., n_measurements: _Optional[bytes] = ..., acceptance: _Optional[_Mapping[str, float]] = ..., parents: _Optional[bytes] = ..., observed: _Optional[bool] = ..., step_ms: _Optional[float] = ..., latency_ms: _Optional[float] = ..., frames_skipped: _Optional[int] = ...) -> None: ...
 
 class ParticleCloud(_message.Message):
     __slots__ = ("frame_index", "time_s", "count", "particles", "image_xy", "weights", "p_visible")
