@@ -16,7 +16,6 @@ import json
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 
-import numpy as np
 from mcap.reader import make_reader
 
 from common.msgs import Estimate, ScoreQuery, ScoreReply, TOPICS, msg_to_image
