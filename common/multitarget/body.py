@@ -94,7 +94,8 @@ class BodyModel:
         return mask
 
     def to_relative(self, pos: np.ndarray) -> np.ndarray:
-        """(..., P, 2) absolute centres -> root position and offsets from each part's parent."""
+        """(..., P, D) absolute centres (D = 2; or 4 with the velocities) -> root position and offsets
+        from each part's parent."""
         rel = pos.copy()
         c = self.parent >= 0
         rel[..., c, :] = pos[..., c, :] - pos[..., self.parent[c], :]

@@ -27,13 +27,14 @@ from .motion import project_to_structure
 
 
 def relative_state(particles: np.ndarray, body: BodyModel) -> np.ndarray:
-    """(..., P, 4) absolute -> relative (positions and velocities relative to the parent)."""
-    return np.concatenate([body.to_relative(particles[..., :2]), body.to_relative(particles[..., 2:])], axis=-1)
+    """(..., P, 4) absolute -> relative (positions and velocities relative to the parent): the
+    body's map works column by column, so one call does both."""
+    return body.to_relative(particles)
 
 
 def absolute_state(rel: np.ndarray, body: BodyModel) -> np.ndarray:
     """Inverse of :func:`relative_state`."""
-    return np.concatenate([body.to_absolute(rel[..., :2]), body.to_absolute(rel[..., 2:])], axis=-1)
+    return body.to_absolute(rel)
 
 
 def crossover(a: np.ndarray, b: np.ndarray, body: BodyModel, prob: float,
