@@ -124,6 +124,23 @@ class Counters:
             return ServiceStatus(service=self.service, cpu_s=cpu.user + cpu.system, final=final, **self.values)
 
 
+class StatusTicker:
+    """Publishes a service's :class:`Counters` as a ServiceStatus on ``pub`` at most once a ``period``."""
+
+    def __init__(self, pub, counters: Counters, period: float = 1.0):
+        self.pub, self.counters, self.period = pub, counters, period
+        self.last = time.monotonic()
+
+    def tick(self, **put_kwargs) -> bool:
+        """Publish if a period has passed since the last time (True then)."""
+        now = time.monotonic()
+        if now - self.last <= self.period:
+            return False
+        self.pub.put(self.counters.status().SerializeToString(), **put_kwargs)
+        self.last = now
+        return True
+
+
 class Stopper:
     """Set on SIGINT/SIGTERM; services poll it between messages."""
 

@@ -31,7 +31,7 @@ from common.msgs import Template as TemplateMsg
 from common.msgs.convert import msg_to_template, template_to_msg
 from common.part_evidence_queries import PART_KINDS, EvidenceCache, answer_part_query
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, publisher
+from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, ns_attachment, open_session, payload_bytes, publisher
 from services.frame_images import decode_image
 
 log = logging.getLogger("polartrack.detector")
@@ -245,15 +245,13 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
                     c.add("malformed")
                     log.warning("malformed template: %s", exc)
 
-        last_status = time.monotonic()
+        status = StatusTicker(pub_status, c)
         while not stopper.stopped:
             inbox.wait(0.2)
             drain_images()
             drain_templates()
-            if time.monotonic() - last_status > 1.0:
-                c.values["dropped"] = inbox.dropped["image"]
-                pub_status.put(c.status().SerializeToString())
-                last_status = time.monotonic()
+            c.values["dropped"] = inbox.dropped["image"]
+            status.tick()
             query = inbox.pop("query")
             if query is None:
                 continue

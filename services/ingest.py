@@ -22,7 +22,7 @@ from common.msgs import Estimate, FrameInfo, MultiEstimate, Truth, pack
 from common.msgs.image_wire import encode_image
 from common.sources import Frame, PrerenderedSource, SourceError, open_source
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
+from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
 
 log = logging.getLogger("polartrack.ingest")
 
@@ -136,7 +136,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         clock = Clock()  # the real-time clock starts at the first frame
         last_ns = start_ns
         index = -1
-        last_status = time.monotonic()
+        status = StatusTicker(pub_status, c)
         first = True
 
         def wait_for_estimate(upto: int) -> None:
@@ -188,9 +188,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)
             c.add("published")
-            if time.monotonic() - last_status > 1.0:
-                pub_status.put(c.status().SerializeToString(), attachment=att)
-                last_status = time.monotonic()
+            status.tick(attachment=att)
         eos = FrameInfo(index=index + 1, end_of_stream=True, source=source.name, total_frames=total,
                         capture_ns=last_ns)
         pub_info.put(eos.SerializeToString(), attachment=ns_attachment(last_ns))

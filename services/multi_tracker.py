@@ -20,7 +20,7 @@ from common.msgs import ScoreQuery, ScoreReply
 from common.multitarget import InitError
 from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
-from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, publisher
+from services.bus import BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, ns_attachment, open_session, publisher
 from services.frame_infos import first_reply, next_frame_info
 
 log = logging.getLogger("polartrack.tracker")
@@ -48,7 +48,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
             return first_reply(querier.get(payload=q.SerializeToString()), c, log)
 
         tracker = None
-        last_status = time.monotonic()
+        status = StatusTicker(pub_status, c)
         log.info("tracker up (%s, %d targets, %d parts, %d particles)", run.method, len(run.boxes),
                  run.config.n_parts, run.config.n_particles)
         skipped = 0
@@ -84,9 +84,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
             msg.frames_skipped = skipped
             pub_est.put(msg.SerializeToString(), attachment=ns_attachment(info.capture_ns))
             c.add("published")
-            if time.monotonic() - last_status > 1.0:
-                pub_status.put(c.status().SerializeToString())
-                last_status = time.monotonic()
+            status.tick()
         pub_status.put(c.status(final=True).SerializeToString())
         presence.close()
         token.undeclare()

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common.msgs import RunConfig, message_class
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Stopper, attachment_ns, open_session, payload_bytes, publisher
+from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, open_session, payload_bytes, publisher
 
 log = logging.getLogger("polartrack.recorder")
 
@@ -111,7 +111,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
         pub_status = publisher(session, bus.key("status/recorder"))
         token = session.liveliness().declare_token(bus.key("alive/recorder"))
         log.info("recording %s** to %s", prefix, cfg.out)
-        last_flush = time.monotonic()
+        status = StatusTicker(pub_status, c)
 
         def write_one(sample) -> None:
             key = str(sample.key_expr)
@@ -132,10 +132,8 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
             if inbox.wait(0.2):
                 while (s := inbox.pop("all")) is not None:
                     write_one(s)
-            if time.monotonic() - last_flush > 1.0:
+            if status.tick():  # and the file flushed as often
                 sink.flush()
-                pub_status.put(c.status().SerializeToString())
-                last_flush = time.monotonic()
         # a short grace period for messages in flight, then close the file properly
         deadline = time.monotonic() + 0.3
         while time.monotonic() < deadline:

@@ -27,7 +27,7 @@ from common.runner import InitError, Tracker, stabilises
 from common.settings import TrackerSettings
 from common.tracking.observation import ObservationUnavailable
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Presence, Stopper, ns_attachment, open_session, publisher
+from services.bus import BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, ns_attachment, open_session, publisher
 from services.frame_infos import first_reply, next_frame_info
 from services.frame_images import FrameImages
 
@@ -112,7 +112,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
         detector = QueryDetector(ask, cfg.client, publish_template)
         tracker = None
         skipped = 0
-        last_status = time.monotonic()
+        status = StatusTicker(pub_status, c)
         log.info("tracker up (%s)", st.filter)
         while not stopper.stopped:
             info, n_skipped = next_frame_info(inbox, cfg.skip_stale, stopper, c, log)
@@ -150,9 +150,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
             if cfg.publish_particles and (cloud := particles_msg(info.index, state)) is not None:
                 pub_cloud.put(cloud.SerializeToString(), attachment=att)
             c.add("published")
-            if time.monotonic() - last_status > 1.0:
-                pub_status.put(c.status().SerializeToString())
-                last_status = time.monotonic()
+            status.tick()
         pub_status.put(c.status(final=True).SerializeToString())
         if images is not None:
             images.close()

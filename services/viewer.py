@@ -21,7 +21,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from services import options
-from services.bus import BusConfig, Counters, Stopper, attachment_ns, ns_attachment, open_session, payload_bytes, publisher
+from services.bus import BusConfig, Counters, StatusTicker, Stopper, attachment_ns, ns_attachment, open_session, payload_bytes, publisher
 
 log = logging.getLogger("polartrack.viewer")
 
@@ -93,7 +93,7 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
             last_ns = None
             last_image_ns = None
             image_interval_ns = int(1e9 / cfg.max_image_hz) if cfg.max_image_hz > 0 else 0
-            last_status = time.monotonic()
+            status = StatusTicker(pub_status, c)
             while not stopper.stopped:
                 got = 0
                 for sub_topic, burst, sub in subs:
@@ -120,9 +120,7 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
                             eos_at = time.monotonic()
                             log.info("end of stream; stopping after %.1f s of quiet", cfg.quiet_s)
                 now = time.monotonic()
-                if now - last_status > 1.0:
-                    pub_status.put(c.status().SerializeToString())
-                    last_status = now
+                status.tick()
                 if got:
                     last_msg = now
                 elif eos_at is not None and now - last_msg >= cfg.quiet_s:

@@ -140,3 +140,25 @@ def test_bad_service_flags_exit_2(tmp_path):
     p = subprocess.run([sys.executable, "-m", "services.ingest", "--source", "/no/such/thing", "--wait-for", ""],
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "no such file" in p.stderr
+
+
+def test_status_ticker_publishes_at_most_once_a_period():
+    import time as _time
+
+    from common.msgs import ServiceStatus
+    from services.bus import Counters, StatusTicker
+
+    class Pub:
+        def __init__(self):
+            self.sent = []
+
+        def put(self, data, **kw):
+            self.sent.append((ServiceStatus.FromString(data), kw))
+
+    pub, c = Pub(), Counters("test")
+    ticker = StatusTicker(pub, c, period=0.05)
+    assert not ticker.tick() and pub.sent == []  # not yet a period since it was made
+    c.add("published", 3)
+    _time.sleep(0.06)
+    assert ticker.tick(attachment=b"x") and not ticker.tick()
+    assert len(pub.sent) == 1 and pub.sent[0][0].published == 3 and pub.sent[0][1] == {"attachment": b"x"}
