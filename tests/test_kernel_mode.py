@@ -1,4 +1,4 @@
-"""kernel_mode_index computed in place equals the (candidates, n, 2) expression it replaced."""
+"""kernel_mode_index (compiled kernel density) picks the mode of the NumPy expression it replaced."""
 
 import numpy as np
 
@@ -35,3 +35,20 @@ def test_candidates_limited_to_the_heaviest():
     cand = np.argsort(-w, kind="stable")[:50]
     want = int(cand[np.argmax(_reference_density(xy, w, cand, _bandwidth(xy, w)))])
     assert kernel_mode_index(xy, w, max_points=50) == want
+
+
+def test_compiled_density_equals_the_numpy_sum():
+    """Both loops (all points, symmetric; given candidates) against the matrix expression, with
+    a far point whose kernel underflows to exactly zero (the skipped terms)."""
+    from common.tracking.kernel_density import kernel_density
+
+    rng = np.random.default_rng(13)
+    xy = np.vstack([rng.normal(0.0, 3.0, (120, 2)), [[1e4, -1e4]]])
+    w = rng.random(121)
+    w /= w.sum()
+    h2 = 2.5
+    cand = np.array([120, 3, 0, 77])
+    want = _reference_density(xy, w, np.arange(121), h2)
+    np.testing.assert_allclose(kernel_density(xy, w, h2), want, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(kernel_density(xy, w, h2, cand), want[cand], rtol=1e-12, atol=0)
+    assert kernel_density(xy, w, h2)[120] == w[120]  # only its own kernel: the others underflow
