@@ -35,14 +35,29 @@ def recorded_run(tmp_path_factory):
     from services.shm_files import segments_mapped_by
 
     used: set[str] = set()  # this run's shared-memory segments (others may run beside it)
+    environ: dict[str, dict[str, str]] = {}
 
     def note_segments(pipe, est):
         if est.frame_index == FRAMES // 2:
             used.update(segments_mapped_by(p.pid for p in pipe.procs.values()))
+            for name, p in pipe.procs.items():
+                raw = open(f"/proc/{p.pid}/environ", "rb").read().split(b"\0")
+                environ[name] = dict(kv.decode().split("=", 1) for kv in raw if b"=" in kv)
 
     with Pipeline(SOURCE, init, settings, out_dir=out, frames=FRAMES, viewer=False, log_dir=out) as pipe:
         result = pipe.run(progress=False, timeout=240, on_estimate=note_segments)
-    return {"result": result, "settings": settings, "init": init, "dir": out, "shm_used": used}
+    return {"result": result, "settings": settings, "init": init, "dir": out, "shm_used": used, "environ": environ}
+
+
+def test_services_keep_frame_buffers_on_the_heap(recorded_run):
+    """Every service runs with the launcher's glibc settings (frame buffers reused, not re-mapped)."""
+    from services.launcher import MALLOC_ENV
+
+    environ = recorded_run["environ"]
+    assert {"tracker", "detector", "recorder"} <= set(environ), sorted(environ)
+    for name, env in environ.items():
+        for k, v in MALLOC_ENV.items():
+            assert env.get(k) == v, (name, k)
 
 
 def test_every_service_exits_cleanly(recorded_run):

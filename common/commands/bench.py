@@ -174,6 +174,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
             skipped = pipe.skipped
         rec = read_recording(result.mcap)
         recorded_images = len(rec.messages.get("frame/image", []))
+        query_ms = np.array([r.score_ms for r in rec.decoded("detector/reply") if r.count > 1], float)
     published = statuses.get("ingest").published if "ingest" in statuses else frames
     cpu_s = {k: v.cpu_s for k, v in sorted(statuses.items())} | {"launcher": launcher_s}
     return {
@@ -183,6 +184,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
         "latency_ms_p50": round(float(np.percentile(lat, 50)), 1) if lat.size else None,
         "latency_ms_p99": round(float(np.percentile(lat, 99)), 1) if lat.size else None,
         "tracker_step_ms_p50": round(float(np.percentile(step, 50)), 1) if step.size else None,
+        "detector_query_ms_p50": round(float(np.percentile(query_ms, 50)), 1) if query_ms.size else None,
         "frames_dropped_by_source": int(statuses["ingest"].dropped) if "ingest" in statuses else None,
         "frames_dropped_by_tracker": int(skipped),
         "frames_missing_from_recording": int(published - recorded_images),

@@ -16,6 +16,7 @@ import numba
 import numpy as np
 
 from common.detector.frame import PreparedFrame
+from common.detector.threads import parallel_chunks
 from common.detector.layout import LEVELS, N_COLUMNS, N_ROWS, SUBBAND_FREQ, destinations, points_per_level
 
 _POINTS = {lvl: np.ascontiguousarray(p, np.float64) for lvl, p in points_per_level().items()}
@@ -139,13 +140,21 @@ def sample_columns(prep: PreparedFrame, x: np.ndarray, y: np.ndarray, valid: np.
     tables = _dest_tables(tuple(int(c) for c in colmap), prep.channels)
     out = np.zeros((x.shape[0], m * N_ROWS * 2), np.float32)
     norm2 = np.zeros(x.shape[0], np.float64)
+    levels = []
     for level in LEVELS:
         lv = prep.levels[level]
         idx, sign, count = tables[level]
         flat = lv.coef.view(np.float32).reshape(lv.coef.shape[0], -1)
-        _sample_level(flat, float(2**level), float(lv.origin_px[0]), float(lv.origin_px[1]),
-                      x, y, valid, _ROT[level], _FREQ, idx, sign, count, _POINTS[level],
-                      prep.channels, out, norm2)
+        levels.append((flat, float(2**level), float(lv.origin_px[0]), float(lv.origin_px[1]),
+                       _ROT[level], idx, sign, count, _POINTS[level]))
+
+    def sample(a: int, b: int) -> None:
+        for flat, scale, ox, oy, rot, idx, sign, count, pts in levels:
+            _sample_level(flat, scale, ox, oy, x[a:b], y[a:b], valid[a:b], rot, _FREQ, idx, sign, count, pts,
+                          prep.channels, out[a:b], norm2[a:b])
+
+    for _ in parallel_chunks(sample, x.shape[0]):
+        pass
     return out.view(np.complex64).reshape(x.shape[0], m, N_ROWS), norm2
 
 
