@@ -1,7 +1,8 @@
 """The synthetic scene's hardest event, end to end: a car emerging from 1.5 s of full smoke.
 
-On seed 4 Pang's RBPF commits to the secondary peak half a car length ahead of the emerging car
-(its visible front half matches the template shifted) and stays there; the jump component of
+On seed 5 (also 6 and 11 of seeds 0-12) Pang's RBPF commits to the secondary peak half a car
+length ahead of the emerging car (its visible front half matches the template shifted) and stays
+there; the jump component of
 ``RECOVERY_PROPOSAL`` brings the track back within 10 frames of re-emergence (``polartrack
 study`` measures this over 20 seeds)."""
 
@@ -33,7 +34,7 @@ def _errors(seed: int, extra: dict, frames: int) -> tuple[np.ndarray, int]:
     return np.array(err), reemergence_frame(np.array(vf), src.scene.events["smoke"])
 
 
-@pytest.mark.parametrize("seed", [4])
+@pytest.mark.parametrize("seed", [5])
 def test_jump_component_recovers_where_pangs_filter_locks_on_an_offset_peak(seed):
     plain, re = _errors(seed, {}, 165)
     assert re is not None and re + 20 <= 165

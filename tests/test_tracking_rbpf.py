@@ -74,8 +74,9 @@ def _brute_force(likelihoods, p_nv, p_v, p0, w0, scores):
     return out
 
 
-def _beta(a1=5, b1=7, a0=1, b0=7, eps=1e-9):
-    """Pang eqs. 15-16: l(V=0) = 1, l(V=1) = Beta(Z|a1,b1) / Beta(Z|a0,b0), Z = clip(max(0, s))."""
+def _beta(a1=5, b1=7, a0=1, b0=7, eps=1e-5):
+    """Pang eqs. 15-16: l(V=0) = 1, l(V=1) = Beta(Z|a1,b1) / Beta(Z|a0,b0), Z = clip(max(0, s))
+    (eps: the likelihood's default clip)."""
 
     def v1(s):
         z = min(max(s, 0.0, eps), 1 - eps)
