@@ -20,10 +20,6 @@ from common.detector.layout import N_ANGLES, N_ROWS, column_harmonics
 from common.detector.sampler import sample_columns
 from common.detector.template import Template
 
-_DFT12 = np.exp(-2j * np.pi * np.outer(np.arange(N_ROWS), np.arange(N_ROWS)) / N_ROWS).astype(np.complex64)
-"""12-point DFT matrix: for 12-point transforms over ~10^5 columns, one complex GEMM is about
-6x faster than numpy.fft here."""
-
 ANGLES_DEG = np.arange(N_ANGLES) * (360.0 / N_ANGLES)
 """The 48-angle grid: 0, 7.5, ..., 352.5 degrees (anticlockwise as displayed)."""
 
@@ -37,38 +33,36 @@ class PolarMatcher:
         nch = template.channels
         kc_one = column_harmonics() if kc is None else np.asarray(kc, np.int64)
         kc_all = np.tile(kc_one, nch)
-        # Candidates are sampled with their columns grouped by harmonic centre, so that the
-        # columns sharing a centre are summed with one reduceat after the row FFT.
-        order = np.argsort(kc_all, kind="stable")
-        self._colmap = np.empty_like(order)
-        self._colmap[order] = np.arange(order.size)
-        kc_sorted = kc_all[order]
-        groups, starts = np.unique(kc_sorted, return_index=True)
-        self._starts = starts
-        self._Hc = np.ascontiguousarray(np.conj(np.fft.fft(H, axis=0)).T[order]).astype(np.complex64)
+        m = kc_all.size
+        self._colmap = np.arange(m)  # candidates' columns in canonical order
         self._norm_h = float(np.linalg.norm(H))
-        self.h_min = int(groups.min()) - 6
-        self.h_max = int(groups.max()) + 6
+        self.h_min = int(kc_all.min()) - 6
+        self.h_max = int(kc_all.max()) + 6
         if self.h_max - self.h_min >= N_ANGLES:
             raise ValueError("column harmonics span too wide for the 48-angle grid")
         nh = self.h_max - self.h_min + 1
-        # place[g, j, h]: weight of DFT bin j of column group g in harmonic h (edges split).
-        place = np.zeros((len(groups), N_ROWS, nh), np.float32)
-        for g, k in enumerate(groups):
+        # place[c, j, h]: weight of DFT bin j of column c in harmonic h (12 bins centred on k_c,
+        # the two edge harmonics sharing one bin at half weight).
+        place = np.zeros((m, N_ROWS, nh))
+        for c, k in enumerate(kc_all):
             for d in range(-6, 7):
-                place[g, (k + d) % N_ROWS, k + d - self.h_min] += 0.5 if abs(d) == 6 else 1.0
-        self._place = place.reshape(len(groups) * N_ROWS, nh).astype(np.complex64)
+                place[c, (k + d) % N_ROWS, k + d - self.h_min] += 0.5 if abs(d) == 6 else 1.0
+        # The row FFT of F, the product with conj(FFT_rows(H)), the placement of each column's
+        # bins on the harmonics and the sum over columns are all linear in F: one (M * 12,
+        # n_harmonics) matrix W does them, spec = F (N, M * 12) @ W. One complex64 product is about
+        # 2.5x quicker than the four steps it replaced (500 candidates: 3.0 -> 1.3 ms). W is
+        # built in complex128.
+        dft = np.exp(-2j * np.pi * np.outer(np.arange(N_ROWS), np.arange(N_ROWS)) / N_ROWS)  # [r, j]
+        hc = np.conj(np.fft.fft(H.astype(np.complex128), axis=0)).T  # (M, 12) [c, j]
+        w = np.einsum("rj,cj,cjk->crk", dft, hc, place)  # (M, 12 rows, nh)
+        self._w = np.ascontiguousarray(w.reshape(m * N_ROWS, nh), np.complex64)
         self.harmonics = np.arange(self.h_min, self.h_max + 1)
 
     # -- core -----------------------------------------------------------------------------
     def spectra(self, cols: np.ndarray, norm2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Correlation spectra (N, n_harmonics) and norms |F| (N,) of candidates sampled by
-        :meth:`sample` (columns in this matcher's grouped order, shape (N, M, 12))."""
-        n = cols.shape[0]
-        S = (cols.reshape(-1, N_ROWS) @ _DFT12).reshape(cols.shape)  # row FFT as one GEMM
-        S *= self._Hc
-        T = np.add.reduceat(S, self._starts, axis=1)  # (N, G, 12)
-        spec = T.reshape(n, -1) @ self._place  # (N, nh)
+        :meth:`sample` (shape (N, M, 12)): one matrix product with W."""
+        spec = cols.reshape(cols.shape[0], -1) @ self._w  # (N, nh)
         return spec, np.sqrt(norm2)
 
     def _denominator(self, norm_f: np.ndarray) -> np.ndarray:
