@@ -79,7 +79,8 @@ def test_monte_carlo_runs_average_independent_filter_seeds():
     configs = {"epmcmc-pda": method_config("epmcmc-pda", n_parts=2, n_particles=30)}
     one = evaluate_scene(cfg, 4, configs)["methods"]["epmcmc-pda"]
     three = evaluate_scene(cfg, 4, configs, runs=3)["methods"]["epmcmc-pda"]
-    assert one["rmse_runs"] == [one["rmse"]] and three["rmse_runs"][0] == one["rmse"]  # run 0: the scene seed, as one run
+    # run 0 is seeded with the scene seed, as a single run is
+    assert one["rmse_runs"] == [one["rmse"]] and three["rmse_runs"][0] == one["rmse"]
     assert len(set(three["rmse_runs"])) == 3  # the other runs draw their own randomness
     assert three["rmse"] == pytest.approx(np.mean(three["rmse_runs"]))
     assert three["identities_kept"] == all(three["identities_kept_runs"]) and len(three["identities_kept_runs"]) == 3
