@@ -22,6 +22,21 @@ def test_eval_multi_json_has_the_three_methods(tmp_path, capsys):
     assert (tmp_path / "eval-multi.json").exists() and (tmp_path / "error_per_frame.png").exists()
 
 
+def test_eval_multi_monte_carlo_runs(tmp_path, capsys):
+    rc = main(["eval-multi", "--json", "--seeds", "1", "--people", "2", "--frames", "10", "--particles", "20",
+               "--parts", "1", "--runs", "2", "--sweeps", "none", "--workers", "1", "--out-dir", str(tmp_path)])
+    assert rc == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["runs"] == 2 and 0.0 <= report["elpda_beats_pda_runs"] <= 1.0
+    assert report["level"] == "structure"
+    for m in ("epmcmc-elpda", "epmcmc-pda", "jpda-pf"):
+        seed0 = report["per_seed"][0][m]
+        assert len(seed0["rmse_runs"]) == 2 and seed0["rmse"] == pytest.approx(np.mean(seed0["rmse_runs"]), abs=2e-3)
+        assert 0.0 <= report["methods"][m]["identities_kept_runs"] <= 1.0
+    assert main(["eval-multi", "--runs", "0", "--out-dir", str(tmp_path)]) == 2
+    assert "--runs" in capsys.readouterr().err
+
+
 @pytest.fixture
 def frames_folder(tmp_path):
     scene = PeopleScene(PeopleSceneConfig(n_people=2, n_frames=10), seed=3)
@@ -66,3 +81,15 @@ def test_missing_boxes_are_explained(frames_folder, capsys):
     assert "--init-file" in capsys.readouterr().err
     assert main(["track-multi", str(folder), "--init-file", str(folder / "nope.txt"), "--no-progress"]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_eval_multi_part_level_association(tmp_path, capsys, monkeypatch):
+    from common.commands import eval_multi
+
+    seen = []
+    real = eval_multi._configs
+    monkeypatch.setattr(eval_multi, "_configs", lambda *a: seen.append(real(*a)) or seen[-1])
+    rc = main(["eval-multi", "--json", "--seeds", "1", "--people", "2", "--frames", "10", "--particles", "20",
+               "--parts", "2", "--level", "part", "--sweeps", "none", "--workers", "1", "--out-dir", str(tmp_path)])
+    assert rc == 0 and json.loads(capsys.readouterr().out)["level"] == "part"
+    assert seen and all(c.gate.level == "part" for c in seen[0].values())  # every method, the same measurement model

@@ -72,3 +72,17 @@ def test_only_elpda_weighs_with_the_re_estimated_r(method):
         assert np.allclose(flt.associate(HistogramEvidence(scene.frame(4).image))[1].r_cov, fixed)
     else:
         assert np.allclose(terms.r_cov, fixed)
+
+
+def test_monte_carlo_runs_average_independent_filter_seeds():
+    cfg = PeopleSceneConfig(n_people=2, n_frames=12)
+    configs = {"epmcmc-pda": method_config("epmcmc-pda", n_parts=2, n_particles=30)}
+    one = evaluate_scene(cfg, 4, configs)["methods"]["epmcmc-pda"]
+    three = evaluate_scene(cfg, 4, configs, runs=3)["methods"]["epmcmc-pda"]
+    # run 0 is seeded with the scene seed, as a single run is
+    assert one["rmse_runs"] == [one["rmse"]] and three["rmse_runs"][0] == one["rmse"]
+    assert len(set(three["rmse_runs"])) == 3  # the other runs draw their own randomness
+    assert three["rmse"] == pytest.approx(np.mean(three["rmse_runs"]))
+    assert three["identities_kept"] == all(three["identities_kept_runs"]) and len(three["identities_kept_runs"]) == 3
+    with pytest.raises(ValueError, match="runs"):
+        evaluate_scene(cfg, 4, configs, runs=0)

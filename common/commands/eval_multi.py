@@ -5,7 +5,12 @@ proposed EPMCMC + ELPDA, the EPMCMC + PDA baseline and the JPDA particle filter 
 the same frames; reported per method: combined RMSE (mean over targets and seeds, pixels, all parts
 of the body model), time per frame, identities kept at the end of the run, MOTA / IDF1 / identity
 switches (motmetrics) and OSPA of the torso centres; and ``elpda_beats_pda``, the fraction of seeds
-where EPMCMC + ELPDA's combined RMSE is lower than EPMCMC + PDA's.
+where EPMCMC + ELPDA's combined RMSE is lower than EPMCMC + PDA's. With ``--runs K`` every scene is
+tracked K times with independent filter seeds (the paper's Monte Carlo cycles; section 4.1 uses
+100) and a method's RMSE on a scene is the mean over its runs; ``elpda_beats_pda`` compares those
+means, ``elpda_beats_pda_runs`` the single runs (run r of ELPDA against run r of PDA), and a
+scene's identities count as kept when every run kept them (``identities_kept_runs``: the share of
+single runs that did).
 
 Sweeps (paper Figs. 7-9) for EPMCMC + ELPDA and EPMCMC + PDA on ``--sweep-seeds`` seeds: combined
 RMSE against the number of targets (1-5), the number of parts (1, 2, 6, 10) and the gate size.
@@ -36,19 +41,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--particles", type=int, help="particles per target (default: the config's 200)")
     p.add_argument("--parts", type=int, default=10, choices=[1, 2, 6, 10], help="body-model parts (default 10)")
     p.add_argument("--gate", type=float, default=15.0, help="validation gate size, px (default 15, the paper's)")
+    p.add_argument("--level", default="structure", choices=["structure", "part"],
+                   help="association unit of every method (GateConfig.level): the whole pictorial structure, "
+                   "located by its torso (default; the paper's section 3.2), or every part on its own")
     p.add_argument("--sweeps", default="targets,parts,gate", metavar="S[,S...]",
                    help="which sweeps to run: targets, parts, gate (comma separated; 'none' for none)")
     p.add_argument("--sweep-seeds", type=int, default=3, help="scene seeds per sweep point (default 3)")
+    p.add_argument("--runs", type=int, default=1,
+                   help="Monte Carlo runs (independent filter seeds) per scene seed of the main comparison; "
+                   "a method's RMSE on a scene is the mean over them (default 1)")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes")
     p.add_argument("--out-dir", default="recordings/eval-multi", help="where to write the PNGs and JSON")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def _configs(methods, particles: int | None, parts: int, gate: float) -> dict:
+def _configs(methods, particles: int | None, parts: int, gate: float, level: str = "structure") -> dict:
     from common.multitarget import method_config
     from common.multitarget.config import GateConfig
 
-    upd = {"n_parts": parts, "gate": GateConfig(gate_size=gate)}
+    upd = {"n_parts": parts, "gate": GateConfig(gate_size=gate, level=level)}
     if particles is not None:
         upd["n_particles"] = particles
     return {m: method_config(m, **upd) for m in methods}
@@ -58,9 +69,9 @@ def _job(job: tuple) -> dict:
     from common.multitarget.experiment import evaluate_scene
     from common.scene.people import PeopleSceneConfig
 
-    kind, value, seed, people, frames, particles, parts, gate, methods = job
+    kind, value, seed, people, frames, particles, parts, gate, level, methods, runs = job
     res = evaluate_scene(PeopleSceneConfig(n_people=people, n_frames=frames), seed,
-                         _configs(methods, particles, parts, gate))
+                         _configs(methods, particles, parts, gate, level), runs=runs)
     res["kind"], res["value"] = kind, value
     return res
 
@@ -75,6 +86,7 @@ def _summary(results: list[dict], methods) -> dict:
             "rmse_per_target": np.mean([r["rmse_per_target"] for r in rows], axis=0).round(3).tolist(),
             "ms_per_frame": round(float(np.mean([r["ms_per_frame"] for r in rows])), 2),
             "identities_kept": round(float(np.mean([r["identities_kept"] for r in rows])), 3),
+            "identities_kept_runs": round(float(np.mean([k for r in rows for k in r["identities_kept_runs"]])), 3),
             "mota": round(float(np.mean([r["mota"] for r in rows])), 4),
             "idf1": round(float(np.mean([r["idf1"] for r in rows])), 4),
             "id_switches": int(sum(r["id_switches"] for r in rows)),
@@ -137,19 +149,21 @@ def _plots(main: list[dict], sweeps: dict, out_dir: Path) -> list[str]:
     return paths
 
 
-def _print_table(summary: dict, wins: float, n: int, sweeps: dict, plots: list[str]) -> None:
+def _print_table(summary: dict, wins: float, n: int, sweeps: dict, plots: list[str], runs: int = 1,
+                 wins_runs: float | None = None) -> None:
     from rich.console import Console
     from rich.table import Table
 
     con = Console()
-    t = Table(title=f"Synthetic people scene, {n} seeds (combined RMSE in px, all parts)")
+    t = Table(title=f"Synthetic people scene, {n} seeds x {runs} run(s) (combined RMSE in px, all parts)")
     for col in ("method", "RMSE", "± std", "ms/frame", "ids kept", "MOTA", "IDF1", "ID sw", "OSPA"):
         t.add_column(col, justify="right" if col != "method" else "left")
     for m, s in summary.items():
         t.add_row(m, f"{s['rmse']:.2f}", f"{s['rmse_std']:.2f}", f"{s['ms_per_frame']:.1f}", f"{s['identities_kept']:.0%}",
                   f"{s['mota']:.3f}", f"{s['idf1']:.3f}", str(s["id_switches"]), f"{s['ospa']:.2f}")
     con.print(t)
-    con.print(f"EPMCMC+ELPDA beats EPMCMC+PDA on {wins:.0%} of the seeds")
+    con.print(f"EPMCMC+ELPDA beats EPMCMC+PDA on {wins:.0%} of the seeds" + ("" if runs == 1 else
+              f" (mean over {runs} runs each; single runs: {wins_runs:.0%})"))
     for kind, table in sweeps.items():
         st = Table(title=f"sweep: {kind}")
         st.add_column(kind)
@@ -165,8 +179,8 @@ def run(args: argparse.Namespace) -> int:
     from common.cli import UsageError
     from common.multitarget import METHODS
 
-    if args.seeds < 1 or args.workers < 1 or args.sweep_seeds < 1:
-        raise UsageError("--seeds, --sweep-seeds and --workers must be at least 1")
+    if args.seeds < 1 or args.workers < 1 or args.sweep_seeds < 1 or args.runs < 1:
+        raise UsageError("--seeds, --sweep-seeds, --runs and --workers must be at least 1")
     if not 1 <= args.people <= 5:
         raise UsageError("--people must be between 1 and 5")
     if args.frames < 10:
@@ -178,14 +192,15 @@ def run(args: argparse.Namespace) -> int:
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     base = (args.people, args.frames, args.particles, args.parts, args.gate)
-    jobs = [("main", None, s, *base, tuple(METHODS)) for s in range(args.seeds)]
+    jobs = [("main", None, s, *base, args.level, tuple(METHODS), args.runs) for s in range(args.seeds)]
     for kind in sweeps_wanted:
         for v in SWEEPS[kind]:
             people, frames, particles, parts, gate = base
             people = v if kind == "targets" else people
             parts = v if kind == "parts" else parts
             gate = v if kind == "gate" else gate
-            jobs += [(kind, v, s, people, frames, particles, parts, gate, SWEEP_METHODS) for s in range(args.sweep_seeds)]
+            jobs += [(kind, v, s, people, frames, particles, parts, gate, args.level, SWEEP_METHODS, 1)
+                     for s in range(args.sweep_seeds)]
     if args.workers == 1:
         results = [_job(j) for j in jobs]
     else:
@@ -194,6 +209,8 @@ def run(args: argparse.Namespace) -> int:
     main = [r for r in results if r["kind"] == "main"]
     summary = _summary(main, METHODS)
     wins = float(np.mean([r["methods"]["epmcmc-elpda"]["rmse"] < r["methods"]["epmcmc-pda"]["rmse"] for r in main]))
+    wins_runs = float(np.mean([a < b for r in main for a, b in zip(r["methods"]["epmcmc-elpda"]["rmse_runs"],
+                                                                   r["methods"]["epmcmc-pda"]["rmse_runs"])]))
     sweeps = {}
     for kind in sweeps_wanted:
         rows = [r for r in results if r["kind"] == kind]
@@ -201,12 +218,15 @@ def run(args: argparse.Namespace) -> int:
                             for v in SWEEPS[kind]} for m in SWEEP_METHODS}
     plots = _plots(main, sweeps, out_dir)
     per_seed = [{"seed": r["seed"], "crossings": len(r["crossings"]),
-                 **{m: {k: (round(v[k], 3) if isinstance(v[k], float) else v[k])
-                        for k in ("rmse", "identities_kept", "id_switches")} for m, v in r["methods"].items()}}
+                 **{m: {"rmse": round(v["rmse"], 3), "identities_kept": v["identities_kept"],
+                        "id_switches": v["id_switches"], "rmse_runs": [round(x, 3) for x in v["rmse_runs"]],
+                        "identities_kept_runs": v["identities_kept_runs"]}
+                    for m, v in r["methods"].items()}}
                 for r in main]
     report = {
-        "seeds": args.seeds, "people": args.people, "frames": args.frames, "parts": args.parts, "gate": args.gate,
-        "methods": summary, "elpda_beats_pda": round(wins, 3),
+        "seeds": args.seeds, "runs": args.runs, "people": args.people, "frames": args.frames, "parts": args.parts,
+        "gate": args.gate, "level": args.level, "methods": summary, "elpda_beats_pda": round(wins, 3),
+        "elpda_beats_pda_runs": round(wins_runs, 3),
         "evidence_ms_per_frame": round(float(np.mean([r["evidence_ms_per_frame"] for r in main])), 2),
         "per_seed": per_seed, "sweeps": sweeps, "sweep_seeds": args.sweep_seeds, "plots": plots,
     }
@@ -214,5 +234,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report))
     else:
-        _print_table(summary, wins, len(main), sweeps, plots)
+        _print_table(summary, wins, len(main), sweeps, plots, args.runs, wins_runs)
     return 0
