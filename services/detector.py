@@ -193,13 +193,16 @@ class DetectorCore:
 
 
 def warm_up() -> None:
-    """Compile the numba sampler before joining the bus (first compilation takes seconds)."""
+    """Compile the numba sampler and start the sampling threads before joining the bus (first
+    compilation takes seconds)."""
     rng = np.random.default_rng(0)
     img = (rng.random((160, 160, 3)) * 255).astype(np.float32)
     matcher = PolarMatcher(Template.from_image(img, (80.0, 80.0)))
     obs = DetectorObservation(0, 0.0, img, matcher, FrameCache())
     obs.score_at(np.array([[80.0, 80.0, 0.0]]))
     obs.score_grid(np.array([[80.0, 80.0]]))
+    # a batch large enough for the sampling threads (the pool starts here, not on the first frame)
+    obs.score_at(np.c_[rng.uniform(70.0, 90.0, (256, 2)), np.zeros(256)])
 
 
 def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Counters:

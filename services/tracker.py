@@ -58,6 +58,16 @@ class TrackerServiceSettings(BaseModel):
         return self
 
 
+def warm_up() -> None:
+    """Load the compiled kernel density (the MAP estimate) before the first frame, not during it."""
+    import numpy as np
+
+    from common.tracking.state import kernel_mode_index
+
+    rng = np.random.default_rng(0)
+    kernel_mode_index(rng.normal(size=(8, 2)), np.full(8, 0.125))
+
+
 def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Counters:
     if cfg.multi:
         from services.multi_tracker import serve_multi
@@ -65,6 +75,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
         return serve_multi(bus, cfg, stopper)
     if cfg.init_box is None:
         raise ValueError("the tracker needs init_box (single target) or multi (multi-target)")
+    warm_up()
     c = Counters("tracker")
     inbox = Inbox()
     st = cfg.settings
