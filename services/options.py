@@ -33,7 +33,7 @@ def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=1, metavar="N",
                    help="OpenCV threads of this process (0: its default, a thread per core)")
     p.add_argument("--nice", type=int, default=0, metavar="N",
-                   help="lower this process's scheduling priority by N (the launcher runs the viewer at 5)")
+                   help="lower this process's scheduling priority by N (the launcher runs the viewer at 19)")
 
 
 def fail(service: str, message: str) -> None:
