@@ -41,3 +41,33 @@ def test_bad_thread_setting_is_explained(monkeypatch, raw):
     monkeypatch.setenv("POLARTRACK_DETECTOR_THREADS", raw)
     with pytest.raises(ValueError, match="POLARTRACK_DETECTOR_THREADS"):
         threads.thread_count()
+
+
+def _score_in_child(queue):
+    img = _test_frame(np.random.default_rng(5), 320, 256)
+    matcher = PolarMatcher(Template.from_image(img, (160.0, 128.0)))
+    rng = np.random.default_rng(6)
+    hyps = np.c_[rng.uniform(80, 240, 300), rng.uniform(80, 176, 300), np.zeros(300)]
+    scores, _ = matcher.score_at(prepare_frame(img), hyps)
+    queue.put(scores.tobytes())
+
+
+def test_forked_child_scores_with_its_own_threads(monkeypatch):
+    """A process forked after the pool started (evaluation workers) has none of its threads: it
+    must start its own instead of waiting forever, and score the same."""
+    import multiprocessing
+
+    monkeypatch.setenv("POLARTRACK_DETECTOR_THREADS", "2")
+    ctx = multiprocessing.get_context("fork")
+    parent = ctx.Queue()
+    _score_in_child(parent)  # starts the pool in this process
+    q = ctx.Queue()
+    child = ctx.Process(target=_score_in_child, args=(q,))
+    child.start()
+    try:
+        got = q.get(timeout=60)
+    finally:
+        child.join(timeout=10)
+        if child.is_alive():
+            child.kill()
+    assert got == parent.get(timeout=5)

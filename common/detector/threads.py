@@ -9,6 +9,7 @@ sets the threads (default 2, the cores of the machines this runs on; 1 disables 
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterator
 
@@ -16,6 +17,19 @@ MIN_CHUNK = 64
 """Hypotheses per chunk at least: below this the hand-off costs more than it saves."""
 
 _pool: ThreadPoolExecutor | None = None
+_pool_pid = 0
+_pool_lock = threading.Lock()
+
+
+def _get_pool(threads: int) -> ThreadPoolExecutor:
+    """This process's pool: a child forked after the pool started (evaluation workers) has none of
+    its threads, so it gets a new one rather than waiting forever on the parent's."""
+    global _pool, _pool_pid
+    with _pool_lock:
+        if _pool is None or _pool_pid != os.getpid():
+            _pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="polartrack-sampler")
+            _pool_pid = os.getpid()
+        return _pool
 
 
 def thread_count() -> int:
@@ -38,14 +52,12 @@ def chunks(n: int, threads: int) -> list[tuple[int, int]]:
 
 def parallel_chunks(fn: Callable[[int, int], object], n: int) -> Iterator[object]:
     """``fn(a, b)`` over the chunks of ``range(n)``, on the pool when there are several; results in order."""
-    global _pool
-    parts = chunks(n, thread_count())
+    threads = thread_count()
+    parts = chunks(n, threads)
     if len(parts) <= 1:
         yield from (fn(a, b) for a, b in parts)
         return
-    if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=thread_count(), thread_name_prefix="polartrack-sampler")
-    futures = [_pool.submit(fn, a, b) for a, b in parts[1:]]
+    futures = [_get_pool(threads).submit(fn, a, b) for a, b in parts[1:]]
     first = fn(*parts[0])  # this thread takes a chunk too
     yield first
     for f in futures:
