@@ -263,7 +263,7 @@ class CameraSource(Source):
 class PrerenderedSource(Source):
     """A seekable source with every frame read (or, for the synthetic scene, rendered) up front and
     held in memory, so that publishing a frame costs what reading a recorded video does
-    (``bench --pipeline --prerender``: the pipeline without the scene renderer, about 17 ms of
+    (``bench --pipeline`` by default: the pipeline without the scene renderer, about 22 ms of
     one core a 1280x720 frame); the frames are the same, bit for bit."""
 
     def __init__(self, source: Source, max_bytes: int = 8 << 30):

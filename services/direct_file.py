@@ -11,9 +11,9 @@ are expensive. With ``O_DIRECT`` the disk reads the data straight from an aligne
 MCAP records come in any length. So writes are collected in a page-aligned staging buffer; whole
 blocks go to the file as soon as ``flush_bytes`` are staged (a raw frame at once, smaller chunks
 a few at a time), the partial last block stays staged. ``flush()`` also writes that last block,
-zero-padded, and the next write rewrites it; ``close()`` cuts the padding off. A process killed
-with SIGKILL therefore leaves every whole block written before its last write (its last chunk may be
-cut short, and zeros may follow it: a reader stops there).
+zero-padded, then cuts the file back to its exact length; the next write rewrites that block.
+A process killed with SIGKILL therefore leaves everything written up to its last flush, plus the
+whole blocks of later writes (the recorder flushes once a second; a reader stops at the cut).
 
 Where the file system refuses ``O_DIRECT`` (tmpfs, some overlays) the file is an ordinary buffered
 one, with the same interface.
@@ -43,14 +43,17 @@ class DirectFile:
         self._fill = 0  # staged bytes
         self._base = 0  # file offset of the stage's first byte (a multiple of BLOCK)
         self.closed = False
-        try:
-            self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_DIRECT, 0o644)
-            self.direct = True
-        except OSError as exc:
-            if exc.errno != errno.EINVAL:
-                raise
+        direct = getattr(os, "O_DIRECT", 0)  # not on macOS: a buffered file there
+        self.direct = False
+        if direct:
+            try:
+                self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | direct, 0o644)
+                self.direct = True
+            except OSError as exc:
+                if exc.errno != errno.EINVAL:
+                    raise
+        if not self.direct:
             self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-            self.direct = False
 
     def write(self, data) -> int:
         src = memoryview(data).cast("B")
@@ -98,11 +101,14 @@ class DirectFile:
         self._fill = tail
 
     def flush(self) -> None:
-        """Everything staged to the file, the last block zero-padded (rewritten by the next write)."""
+        """Everything staged to the file: the last block zero-padded (rewritten by the next write),
+        then the file cut back to its exact length, so that a reader of a killed writer's file
+        finds no zeros after the last record."""
         self._write_blocks()
         if self._fill:
             self._view[self._fill:BLOCK] = bytes(BLOCK - self._fill)
             self._pwrite(BLOCK)
+            os.ftruncate(self._fd, self._base + self._fill)
 
     def close(self) -> None:
         if self.closed:

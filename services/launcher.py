@@ -92,7 +92,7 @@ NICE = {"viewer": 19}
 """Services run at a lower priority: the viewer's work is for inspection, and it drops images and
 particle clouds rather than fall behind; the detector and tracker, whose work is the latency,
 come first. Every frame wakes the detector, the recorder and the viewer at once; at nice 5 the
-viewer (mostly Rerun's own threads) took the detector's CPU: bench --pipeline --prerender went
+viewer (mostly Rerun's own threads) took the detector's CPU: bench --pipeline (frames rendered before the run) went
 from 26.5 to 27.7-27.9 estimates/s and the latency p50 from 49-55 to 31-36 ms at nice 19."""
 
 

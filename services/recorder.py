@@ -5,7 +5,8 @@ Subscribes to ``polartrack/<stream>/**`` and writes each message on a channel na
 frame's capture time (from the message attachment), publish time = when it was received.
 Messages of unknown topics are kept too (schemaless). The run configuration is written as MCAP
 metadata. Chunks are LZ4-compressed (zstd is too slow for raw video here; the launcher asks for
-none on the synthetic scene, whose noisy frames LZ4 cannot shrink) and flushed as they fill, so a recorder killed with SIGKILL leaves a file readable up to its last chunk.
+none on the synthetic scene, whose noisy frames LZ4 cannot shrink) and written around the page cache (:mod:`services.direct_file`), flushed at least once a second, so a
+recorder killed with SIGKILL leaves a file readable up to its last flush.
 Run: ``python -m services.recorder --help``.
 """
 

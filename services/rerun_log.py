@@ -586,7 +586,6 @@ def mcap_to_rrd(mcap_path: str | os.PathLike, rrd_path: str | os.PathLike, *, sp
     (``images``, ``estimates``, ``clouds``, ``malformed``, ...), ``truncated`` (the file ended
     mid-record: converted up to there) and ``seconds``. Raises ``ValueError`` if ``mcap_path``
     is not an MCAP file, ``OSError`` if it cannot be read."""
-    from mcap.exceptions import McapError
     from mcap.reader import NonSeekingReader
 
     t0 = time.perf_counter()
@@ -613,7 +612,8 @@ def mcap_to_rrd(mcap_path: str | os.PathLike, rrd_path: str | os.PathLike, *, sp
                                     cls.DESCRIPTOR.full_name)
                         continue
                     logger.log_message(topic, message.data, int(message.log_time))
-            except (McapError, EOFError, ValueError) as exc:  # a recorder killed mid-chunk
+            except Exception as exc:  # noqa: BLE001 - a recorder killed mid-record: the mcap reader raises
+                # McapError, EOFError, struct.error or a decompressor's error on a cut chunk
                 truncated = True
                 log.warning("%s: read stopped early (%s: %s); converted what was read",
                             mcap_path, type(exc).__name__, exc)

@@ -66,6 +66,7 @@ def warm_up() -> None:
 
     rng = np.random.default_rng(0)
     kernel_mode_index(rng.normal(size=(8, 2)), np.full(8, 0.125))
+    kernel_mode_index(rng.normal(size=(8, 2)), np.full(8, 0.125), max_points=4)  # the loop for large clouds
 
 
 def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Counters:

@@ -137,6 +137,19 @@ def test_truncated_recording_converts_what_is_there(tmp_path):
     assert (tmp_path / "cut.rrd").exists()
 
 
+def test_recording_cut_anywhere_converts(tmp_path):
+    """Wherever a killed recorder's file ends (mid-header, mid-record, mid-chunk), the conversion
+    stops there instead of raising (the reader raises McapError, EOFError, struct.error, ...)."""
+    src = tmp_path / "full.mcap"
+    _write_mcap(src, _messages(3))
+    data = src.read_bytes()
+    for i, end in enumerate(range(9, len(data), max(1, len(data) // 23))):
+        cut = tmp_path / f"cut{i}.mcap"
+        cut.write_bytes(data[:end])
+        stats = mcap_to_rrd(cut, tmp_path / f"cut{i}.rrd")
+        assert stats["truncated"], end
+
+
 def test_two_loggers_in_one_process(tmp_path):
     import rerun as rr
 

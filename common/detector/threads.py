@@ -23,7 +23,8 @@ _pool_lock = threading.Lock()
 
 def _get_pool(threads: int) -> ThreadPoolExecutor:
     """This process's pool: a child forked after the pool started (evaluation workers) has none of
-    its threads, so it gets a new one rather than waiting forever on the parent's."""
+    its threads, so it gets a new one rather than waiting forever on the parent's. Its size is
+    the thread count at its first use (a later count changes the chunks, not the workers)."""
     global _pool, _pool_pid
     with _pool_lock:
         if _pool is None or _pool_pid != os.getpid():
