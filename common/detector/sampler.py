@@ -16,7 +16,7 @@ import numba
 import numpy as np
 
 from common.detector.frame import PreparedFrame
-from common.detector.threads import parallel_chunks
+from common.detector.threads import run_chunks
 from common.detector.layout import LEVELS, N_COLUMNS, N_ROWS, SUBBAND_FREQ, destinations, points_per_level
 
 _POINTS = {lvl: np.ascontiguousarray(p, np.float64) for lvl, p in points_per_level().items()}
@@ -153,8 +153,7 @@ def sample_columns(prep: PreparedFrame, x: np.ndarray, y: np.ndarray, valid: np.
             _sample_level(flat, scale, ox, oy, x[a:b], y[a:b], valid[a:b], rot, _FREQ, idx, sign, count, pts,
                           prep.channels, out[a:b], norm2[a:b])
 
-    for _ in parallel_chunks(sample, x.shape[0]):
-        pass
+    run_chunks(sample, x.shape[0])
     return out.view(np.complex64).reshape(x.shape[0], m, N_ROWS), norm2
 
 

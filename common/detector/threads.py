@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, Iterator
+from typing import Callable
 
 MIN_CHUNK = 64
 """Hypotheses per chunk at least: below this the hand-off costs more than it saves."""
@@ -51,15 +51,13 @@ def chunks(n: int, threads: int) -> list[tuple[int, int]]:
     return [(edges[i], edges[i + 1]) for i in range(k) if edges[i + 1] > edges[i]]
 
 
-def parallel_chunks(fn: Callable[[int, int], object], n: int) -> Iterator[object]:
-    """``fn(a, b)`` over the chunks of ``range(n)``, on the pool when there are several; results in order."""
+def run_chunks(fn: Callable[[int, int], None], n: int) -> None:
+    """``fn(a, b)`` over the chunks of ``range(n)``: this thread takes the first, the pool the rest,
+    and it returns when all are done (a worker's exception is raised here)."""
     threads = thread_count()
     parts = chunks(n, threads)
-    if len(parts) <= 1:
-        yield from (fn(a, b) for a, b in parts)
-        return
     futures = [_get_pool(threads).submit(fn, a, b) for a, b in parts[1:]]
-    first = fn(*parts[0])  # this thread takes a chunk too
-    yield first
+    for a, b in parts[:1]:
+        fn(a, b)
     for f in futures:
-        yield f.result()
+        f.result()
