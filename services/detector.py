@@ -40,7 +40,8 @@ log = logging.getLogger("polartrack.detector")
 class DetectorSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    max_frames: int = Field(8, ge=1, description="Frames held (oldest dropped): bounds memory")
+    max_frames: int = Field(16, ge=1, description="Frames held (oldest dropped): bounds memory. Twice the "
+                            "tracker's max_lag_frames: frames reach the detector before the tracker learns of them")
     wait_frame_s: float = Field(1.0, ge=0, description="How long a query waits for its frame's image to arrive")
 
 
@@ -71,8 +72,9 @@ class DetectorCore:
         """(client, frame, factor, template version) -> the frame's observation, kept so the
         template adaptation's PEAK reuses the region the filter's query prepared (as in-process)."""
         self.counters = Counters("detector")
-        self.evidence = EvidenceCache(self.settings.max_frames)
-        """The frames' integral histograms (multi-target part evidence)."""
+        self.evidence = EvidenceCache(min(4, self.settings.max_frames))
+        """The latest frames' integral histograms (multi-target part evidence; tens of MB each, so
+        fewer than the frames held: an older frame's is computed again if asked for)."""
 
     def add_frame(self, index: int, image: np.ndarray, time_s: float) -> None:
         self.frames[index] = (image, time_s)

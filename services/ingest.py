@@ -34,6 +34,9 @@ class IngestSettings(BaseModel):
     frames: int | None = Field(None, ge=1, description="only the first N frames")
     pace: Literal["consumer", "realtime", "max"] = Field("consumer", description="how fast frames go out")
     window: int = Field(2, ge=1, description="consumer pacing: frames in flight ahead of the last estimate")
+    max_late_frames: int = Field(2, ge=0, description="real time (file sources): a frame up to this many frame "
+                                 "periods late still goes out, stamped with the time it was due, as a camera's "
+                                 "buffered frame would; later ones are skipped and counted as dropped")
     consumer_timeout_s: float = Field(10.0, gt=0, description="consumer pacing: give up waiting after this")
     wait_for: list[str] = Field(default_factory=list, description="services to wait for (liveliness) first")
     wait_timeout_s: float = Field(60.0, gt=0)
@@ -76,12 +79,21 @@ class Clock:
         """Frame time ``frame_time`` is due now."""
         self.wall0 = time.monotonic() - frame_time
 
+    def reset(self) -> None:
+        """Not started: the next frame read is due when it is read."""
+        self.wall0 = None
 
-def frames_to_publish(source, pace: str, counters: Counters, clock: Clock | None = None):
+    def lateness_s(self, frame_time: float) -> float:
+        """How long ago frame time ``frame_time`` was due (0 when not yet, or not started)."""
+        return 0.0 if self.wall0 is None else max(0.0, time.monotonic() - (self.wall0 + frame_time))
+
+
+def frames_to_publish(source, pace: str, counters: Counters, clock: Clock | None = None, max_late: int = 0):
     """Frames in source order; in real time, a source that can be read at any frame skips
-    straight to the frame due now when it falls behind (counted as dropped), as a camera would,
-    instead of reading frames it will not publish. The clock starts at the first frame (or when
-    the caller restarts ``clock``)."""
+    straight to the frame due now when it falls more than ``max_late`` frames behind (counted
+    as dropped), as a camera would once its buffer is full, instead of reading frames it will
+    not publish. The clock starts at the first frame (or when the caller restarts ``clock``;
+    after ``clock.reset()``, at the next frame)."""
     if pace != "realtime" or source.live or not hasattr(source, "frame"):
         yield from source
         return
@@ -92,7 +104,7 @@ def frames_to_publish(source, pace: str, counters: Counters, clock: Clock | None
         wall0 = clock.wall0
         if wall0 is not None:
             due = int((time.monotonic() - wall0) * source.fps)
-            if due > i:
+            if due > i + max_late:
                 counters.add("dropped", min(due, n) - i)
                 i = due
                 if i >= n:
@@ -157,7 +169,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
                     done = upto
                     c.add("errors")
 
-        for frame in frames_to_publish(source, cfg.pace, c, clock):
+        for frame in frames_to_publish(source, cfg.pace, c, clock, cfg.max_late_frames):
             if stopper.stopped:
                 break
             index = frame.index
@@ -166,19 +178,15 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             elif cfg.pace == "realtime":
                 if clock.wall0 is None:
                     clock.start(frame.time)
-                if not first and not source.live and done < 0:
-                    # A file source in real time starts its clock once the tracker has set up
-                    # on the first frame (the template, the services' first calls), as an
-                    # operator marks the target and then tracks: else the set-up's second
-                    # would skip the first 30 frames and lose a fast target.
-                    wait_for_estimate(0)
-                    clock.start(frame.time)
                 delay = clock.wall0 + frame.time - time.monotonic()
                 if delay > 0:
                     stopper.wait(delay)
-            first = False
-            if source.live or cfg.pace == "realtime":
+            if source.live:
                 capture_ns = time.time_ns()
+            elif cfg.pace == "realtime":
+                # a late frame (within max_late_frames) is stamped with the time it was due: its
+                # latency counts from then
+                capture_ns = time.time_ns() - int(clock.lateness_s(frame.time) * 1e9)
             else:
                 capture_ns = start_ns + int(round(frame.time * 1e9))
             last_ns = capture_ns
@@ -189,6 +197,15 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
                          attachment=att)
             c.add("published")
             status.tick(attachment=att)
+            if first and cfg.pace == "realtime" and not source.live:
+                # A file source in real time starts its clock once the tracker has set up on the
+                # first frame (the template, the services' first calls), as an operator marks the
+                # target and then tracks: else the set-up's second would skip the first 30 frames
+                # and lose a fast target. The next frame read is due when it is read (the clock
+                # restarted here, not at the next frame, so that frame 1 is never counted late).
+                wait_for_estimate(0)
+                clock.reset()
+            first = False
         eos = FrameInfo(index=index + 1, end_of_stream=True, source=source.name, total_frames=total,
                         capture_ns=last_ns)
         pub_info.put(eos.SerializeToString(), attachment=ns_attachment(last_ns))

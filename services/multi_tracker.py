@@ -21,7 +21,7 @@ from common.multitarget import InitError
 from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
 from services.bus import BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, ns_attachment, open_session, publisher
-from services.frame_infos import first_reply, next_frame_info
+from services.frame_infos import InfoQueue, first_reply
 
 log = logging.getLogger("polartrack.tracker")
 
@@ -34,6 +34,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
     ids = itertools.count(1)
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
+        infos = InfoQueue(inbox, cfg.skip_stale, cfg.max_lag_frames, c, log)
         querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
         pub_est = publisher(session, bus.key("track/multi_estimate"))
         pub_status = publisher(session, bus.key("status/tracker"))
@@ -53,7 +54,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
                  run.config.n_parts, run.config.n_particles)
         skipped = 0
         while not stopper.stopped:
-            info, n_skipped = next_frame_info(inbox, cfg.skip_stale, stopper, c, log)
+            info, n_skipped = infos.next(stopper)
             skipped += n_skipped
             if info is None:
                 continue

@@ -41,15 +41,24 @@ def fail(service: str, message: str) -> None:
     raise SystemExit(2)
 
 
-def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]) -> tuple[BusConfig, M]:
+def lower_priority(nice: int) -> None:
+    """Lower the priority of the calling thread, and of the threads it starts from now on, by
+    ``nice`` (Linux: the nice value is per thread, and a new thread inherits its creator's)."""
+    if nice > 0:
+        os.nice(nice)
+
+
+def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str],
+         nice_later: bool = False) -> tuple[BusConfig, M]:
     """Merge the TOML file (if any) and the flags that were given, then validate both models.
     Also limits the process's OpenCV threads (``--threads``, see :mod:`services.threads`) and
-    lowers its priority (``--nice``)."""
+    lowers its priority (``--nice``), unless ``nice_later``: then the service calls
+    :func:`lower_priority` itself, once the threads that must keep their priority are up."""
     from services.threads import limit_threads
 
     limit_threads(getattr(args, "threads", 0) or 0)
-    if getattr(args, "nice", 0) > 0:
-        os.nice(args.nice)
+    if not nice_later:
+        lower_priority(getattr(args, "nice", 0))
     data: dict = {}
     if args.config:
         try:

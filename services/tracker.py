@@ -7,8 +7,9 @@ template on the first frame, one batched query with all hypotheses per frame, an
 settings ask, the scale search's queries and the template adaptation's PEAK, the adapted
 template going out on the ``template`` key with a new version. Publishes the estimate and the
 particle cloud. A missing reply (detector down, timeout) is "no observation": the filter
-predicts only. With ``skip_stale`` (live sources) it skips to the newest frame when it falls
-behind, counting the skipped ones. Run: ``python -m services.tracker --help``.
+predicts only. With ``skip_stale`` (live sources) it tracks frames in order while it is at
+most ``max_lag_frames`` behind, and skips the stale ones beyond that, counting them
+(:class:`services.frame_infos.InfoQueue`). Run: ``python -m services.tracker --help``.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from common.settings import TrackerSettings
 from common.tracking.observation import ObservationUnavailable
 from services import options
 from services.bus import BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, ns_attachment, open_session, publisher
-from services.frame_infos import first_reply, next_frame_info
+from services.frame_infos import InfoQueue, first_reply
 from services.frame_images import FrameImages
 
 log = logging.getLogger("polartrack.tracker")
@@ -44,7 +45,11 @@ class TrackerServiceSettings(BaseModel):
     settings: TrackerSettings = Field(default_factory=TrackerSettings, description="the filter's settings")
     client: str = Field("tracker", description="name in queries (the detector caches regions per client)")
     query_timeout_s: float = Field(2.0, gt=0, description="querier timeout: no reply by then = no observation")
-    skip_stale: bool = Field(False, description="live source: skip to the newest frame when behind")
+    skip_stale: bool = Field(False, description="live source: skip stale frames (see max_lag_frames)")
+    max_lag_frames: int = Field(
+        8, ge=0, description="live source: frames are tracked in order while at most this many newer ones "
+        "wait; older ones are stale, skipped and counted (0: always the newest). Keep it well below the "
+        "detector's max_frames (16): a query must reach the detector before its frame is dropped there")
     publish_particles: bool = Field(True, description="publish the particle cloud every frame")
     detector_wait_s: float = Field(30.0, ge=0, description="wait this long for the detector at start")
     template_timeout_s: float = Field(30.0, gt=0, description="timeout of the template query (first frame)")
@@ -82,9 +87,11 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
     st = cfg.settings
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
+        infos = InfoQueue(inbox, cfg.skip_stale, cfg.max_lag_frames, c, log)
         # subscribed before any frame can arrive; dropped on the first frame if the source's
         # homography makes stabilisation unnecessary ("auto")
-        images = FrameImages(session, bus.key("frame/image"), c) if st.stabilise != "off" else None
+        images = (FrameImages(session, bus.key("frame/image"), c, keep=cfg.max_lag_frames + 3)
+                  if st.stabilise != "off" else None)
         querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
         pub_est = publisher(session, bus.key("track/estimate"))
         pub_cloud = publisher(session, bus.key("track/particles"))
@@ -127,7 +134,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
         status = StatusTicker(pub_status, c)
         log.info("tracker up (%s)", st.filter)
         while not stopper.stopped:
-            info, n_skipped = next_frame_info(inbox, cfg.skip_stale, stopper, c, log)
+            info, n_skipped = infos.next(stopper)
             skipped += n_skipped
             if info is None:
                 continue

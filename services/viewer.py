@@ -72,7 +72,13 @@ class ViewerSettings(BaseModel):
         return v
 
 
-def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
+def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) -> dict:
+    """``nice``: lower the priority of this thread and of Rerun's threads, but not of Zenoh's, which
+    the session starts first. Zenoh's threads only move samples into the bounded channels; niced
+    with the rest, they drained the socket late whenever the machine was busy, the router's queue
+    to the viewer filled, and the router, blocking on it, held up every other service's
+    messages behind it (the detector got frames 100-170 ms late at the start of a run, and the
+    tracker then skipped 40 frames)."""
     from services.rerun_log import RunLogger, display_available
 
     c = Counters("viewer")
@@ -80,6 +86,7 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper) -> dict:
     if cfg.spawn and not spawn:
         log.warning("--spawn: no display available; writing %s only", cfg.out)
     session = open_session(bus)  # before the file: a bus that cannot be joined leaves no empty .rrd
+    options.lower_priority(nice)  # after Zenoh's threads started, before Rerun's
     logger = RunLogger.to_file(cfg.out, spawn=spawn, jpeg_quality=cfg.jpeg_quality, track_length=cfg.track_length)
     eos_at: float | None = None
     try:
@@ -151,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-image-hz", type=float, metavar="HZ", help="frame images logged per second at most (0: all)")
     args = p.parse_args(argv)
     bus, cfg = options.load("viewer", args, ViewerSettings,
-                            ["out", "spawn", "jpeg_quality", "track_length", "quiet_s", "max_image_hz"])
+                            ["out", "spawn", "jpeg_quality", "track_length", "quiet_s", "max_image_hz"],
+                            nice_later=True)
     try:
         bus.zenoh_config()
     except zenoh.ZError as exc:
@@ -160,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
 
     setup_logging("viewer", args.log_level)
     try:
-        serve(bus, cfg, Stopper())
+        serve(bus, cfg, Stopper(), nice=args.nice)
     except zenoh.ZError as exc:
         log.error("cannot join the bus: %s", str(exc).split(" at /")[0])
         return 1

@@ -149,3 +149,57 @@ def test_realtime_clock_restart_drops_nothing():
     assert seen[:2] == [0, 1] and dropped <= 1  # (a frame if rendering the next took over 33 ms)
     seen, dropped = run(restart=False)  # negative control: the pause counted as late frames
     assert seen[2] >= 12 and dropped >= 10
+
+
+def test_realtime_late_frames_within_max_late_are_published_not_dropped():
+    """A reader held up for 2.5 frame periods publishes the late frames (a camera's buffer) with
+    ``max_late=3``, and skips them with ``max_late=0`` (the negative control). The clock knows how
+    late each frame is, which the ingest subtracts from its capture stamp."""
+    import time
+
+    from services.bus import Counters
+    from services.ingest import Clock, frames_to_publish
+
+    src = open_source("synthetic:1", n_frames=12)
+
+    def run(max_late: int) -> tuple[list[int], int, float]:
+        clock, counters = Clock(), Counters("test")
+        seen, late = [], 0.0
+        for frame in frames_to_publish(src, "realtime", counters, clock, max_late=max_late):
+            seen.append(frame.index)
+            time.sleep(max(0.0, clock.wall0 + frame.time - time.monotonic()))  # on time, as the ingest
+            if frame.index == 2:
+                time.sleep(2.5 / src.fps)
+            if frame.index == 3:
+                late = clock.lateness_s(frame.time)
+            if len(seen) == 4:
+                break
+        return seen, counters["dropped"], late
+
+    seen, dropped, late = run(3)
+    assert seen == [0, 1, 2, 3] and dropped == 0 and late > 1.0 / src.fps
+    seen, dropped, _ = run(0)
+    assert seen[3] >= 4 and dropped >= 1
+
+
+def test_clock_reset_makes_the_next_frame_due_when_read():
+    import time
+
+    from services.bus import Counters
+    from services.ingest import Clock, frames_to_publish
+
+    src = open_source("synthetic:1", n_frames=12)
+    for reset, expect_drop in ((True, False), (False, True)):
+        clock, counters = Clock(), Counters("test")
+        seen = []
+        for frame in frames_to_publish(src, "realtime", counters, clock):
+            seen.append(frame.index)
+            if frame.index == 0:
+                time.sleep(0.2)  # the set-up on frame 0: six frame periods
+                if reset:
+                    clock.reset()
+            if len(seen) == 2:
+                break
+        assert (seen[1] != 1) == expect_drop, (reset, seen)
+        assert (counters["dropped"] > 0) == expect_drop
+    assert Clock().lateness_s(5.0) == 0.0  # not started: never late

@@ -267,6 +267,31 @@ def test_viewer_service_end_to_end(tmp_path, max_image_hz, images):
             proc.wait(timeout=10)
 
 
+def _thread_nice(pid: int) -> dict[str, set[int]]:
+    """Thread name -> the nice values of the threads of that name, from /proc."""
+    out: dict[str, set[int]] = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        stat = (task / "stat").read_text()
+        name = stat[stat.index("(") + 1: stat.rindex(")")]
+        nice = int(stat[stat.rindex(")") + 2:].split()[16])  # field 19 of stat
+        out.setdefault(name, set()).add(nice)
+    return out
+
+
+def _check_viewer_priorities(pid: int) -> None:
+    """A viewer run with ``--nice 19``: its own work (the main thread, Rerun's threads) at 19, but
+    Zenoh's threads, which move samples from the socket into the bounded channels, at the normal
+    priority: niced, they drained the socket late on a busy machine, and the router, blocked on
+    the viewer's full queue, held up every other service's messages."""
+    threads = _thread_nice(pid)
+    main = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[16])
+    zenoh = {n: v for n, v in threads.items() if n.split("-")[0] in ("rx", "tx", "net", "app", "acc")}
+    rerun = {n: v for n, v in threads.items() if n in ("RecordingStream", "file_writer") or n.startswith("ChunkBatcher")}
+    assert main == 19, threads
+    assert zenoh and all(v == {0} for v in zenoh.values()), threads
+    assert rerun and all(v == {19} for v in rerun.values()), threads
+
+
 def test_viewer_stops_cleanly_on_sigterm(tmp_path):
     from services.bus import BusConfig, ns_attachment, open_session, wait_for_alive
 
@@ -275,12 +300,14 @@ def test_viewer_stops_cleanly_on_sigterm(tmp_path):
     endpoint = f"tcp/127.0.0.1:{port}"
     out = tmp_path / "stopped.rrd"
     proc = subprocess.Popen([sys.executable, "-m", "services.viewer", "--stream", stream, "--listen", endpoint,
-                             "--out", str(out)], cwd=REPO, env=_env(), stdout=subprocess.PIPE,
+                             "--out", str(out), "--nice", "19"], cwd=REPO, env=_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
         bus = BusConfig(stream=stream, connect=[endpoint])
         with open_session(bus) as session:
             assert wait_for_alive(session, bus, ["viewer"], timeout=30), "viewer never came up"
+            if sys.platform.startswith("linux"):
+                _check_viewer_priorities(proc.pid)
             pub = session.declare_publisher(bus.key("frame/image"))
             time.sleep(0.2)
             topic, data, ns = _messages(1)[0]
