@@ -197,18 +197,23 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
         "steady_cpu_ms_per_frame": {k: v[1] for k, v in steady.items()},
         "mean_err": None if result.mean_err is None else round(result.mean_err, 2),
         "returncodes": result.returncodes,
-    } | meets_targets(result.fps, lat, published - recorded_images)
+    } | meets_targets(result.fps, lat, published - recorded_images,
+                      int(skipped) + (int(statuses["ingest"].dropped) if "ingest" in statuses else 0))
 
 
-TARGETS = {"fps": 30.0, "latency_ms_p50": 50.0, "frames_missing_from_recording": 0}
-"""The live pipeline's targets (issue 4): 30 estimates a second sustained, half of them within 50 ms
-of capture, no frame missing from the recording."""
+TARGETS = {"fps": 30.0, "frames_dropped": 0, "latency_ms_p50": 50.0, "frames_missing_from_recording": 0}
+"""The live pipeline's targets (issue 4): 30 estimates a second sustained (every frame estimated:
+none dropped by the source or the tracker), half of them within 50 ms of capture, no frame
+missing from the recording."""
 
 
-def meets_targets(fps: float, latencies_ms: np.ndarray, missing: int) -> dict:
-    """``targets`` and, for each, whether this run met it (fps within 2 % of 30, for the run's ends)."""
+def meets_targets(fps: float, latencies_ms: np.ndarray, missing: int, dropped: int) -> dict:
+    """``targets`` and, for each, whether this run met it. ``fps`` is the rate of estimates from
+    the first to the last, so it may fall short of 30 by the run's ends: within 0.5 % counts;
+    ``dropped`` is the frames the source and the tracker skipped."""
     p50 = float(np.percentile(latencies_ms, 50)) if len(latencies_ms) else float("inf")
-    met = {"fps": fps >= 0.98 * TARGETS["fps"], "latency_ms_p50": p50 <= TARGETS["latency_ms_p50"],
+    met = {"fps": fps >= 0.995 * TARGETS["fps"], "frames_dropped": dropped <= TARGETS["frames_dropped"],
+           "latency_ms_p50": p50 <= TARGETS["latency_ms_p50"],
            "frames_missing_from_recording": missing <= TARGETS["frames_missing_from_recording"]}
     return {"targets": TARGETS, "targets_met": met, "meets_targets": all(met.values())}
 
