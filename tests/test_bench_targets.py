@@ -1,5 +1,6 @@
 """`polartrack bench --pipeline`'s verdict on issue 4's targets."""
 
+
 def test_pipeline_targets():
     """The bench's verdict on issue 4's targets, at and around each limit."""
     import numpy as np
