@@ -33,6 +33,7 @@ from common.part_evidence_queries import PART_KINDS, EvidenceCache, answer_part_
 from services import options
 from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, ns_attachment, open_session, payload_bytes, publisher
 from services.frame_images import decode_image
+from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.detector")
 
@@ -226,8 +227,12 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
         token = session.liveliness().declare_token(bus.key("alive/detector"))
         log.info("detector up on %s", bus.key("detector/score"))
 
+        segments = SegmentPopulator()
+
         def drain_images() -> None:
+            got = False
             while (s := inbox.pop("image")) is not None:
+                got = True
                 c.add("received")
                 try:
                     idx, img, ns = decode_image(s)
@@ -239,6 +244,8 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
                 while len(capture_ns) > settings.max_frames:
                     capture_ns.popitem(last=False)
                 core.add_frame(idx, img, capture_ns[idx] * 1e-9)
+            if got:
+                segments.populate()  # the frames' shared memory, once it is mapped
 
         def drain_templates() -> None:
             while (s := inbox.pop("template")) is not None:

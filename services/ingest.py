@@ -23,6 +23,7 @@ from common.msgs.image_wire import encode_image
 from common.sources import Frame, PrerenderedSource, SourceError, open_source
 from services import options
 from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
+from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.ingest")
 
@@ -150,6 +151,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         index = -1
         status = StatusTicker(pub_status, c)
         first = True
+        segments = SegmentPopulator(write=True)
 
         def wait_for_estimate(upto: int) -> None:
             """Until frame ``upto`` or a later one is estimated (consumer pacing, and the first
@@ -193,6 +195,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             att = ns_attachment(capture_ns)
             true_centre = source.true_centre(frame.index) if hasattr(source, "true_centre") else None
             pub_image.put(encode_image(frame.image, capture_ns, str(frame.index)), attachment=att)
+            segments.populate()  # the pool, once the first frame has created it
             pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)
             c.add("published")

@@ -28,6 +28,7 @@ from common.msgs import RunConfig, message_class
 from services import options
 from services.direct_file import DirectFile
 from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, open_session, payload_bytes, publisher
+from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.recorder")
 
@@ -130,10 +131,12 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                     c.add("malformed")
                     log.warning("malformed run config: %s", exc)
 
+        segments = SegmentPopulator()
         while not stopper.stopped:
             if inbox.wait(0.2):
                 while (s := inbox.pop("all")) is not None:
                     write_one(s)
+                segments.populate()  # the frames' shared memory, once it is mapped
             if status.tick():  # and the file flushed as often
                 sink.flush()
         # a short grace period for messages in flight, then close the file properly

@@ -47,7 +47,7 @@ class TrackerServiceSettings(BaseModel):
     query_timeout_s: float = Field(2.0, gt=0, description="querier timeout: no reply by then = no observation")
     skip_stale: bool = Field(False, description="live source: skip stale frames (see max_lag_frames)")
     max_lag_frames: int = Field(
-        8, ge=0, description="live source: frames are tracked in order while at most this many newer ones "
+        10, ge=0, description="live source: frames are tracked in order while at most this many newer ones "
         "wait; older ones are stale, skipped and counted (0: always the newest). Keep it well below the "
         "detector's max_frames (16): a query must reach the detector before its frame is dropped there")
     publish_particles: bool = Field(True, description="publish the particle cloud every frame")

@@ -156,9 +156,9 @@ def test_status_ticker_publishes_at_most_once_a_period():
             self.sent.append((ServiceStatus.FromString(data), kw))
 
     pub, c = Pub(), Counters("test")
-    ticker = StatusTicker(pub, c, period=0.05)
+    ticker = StatusTicker(pub, c, period=0.5)  # long enough for a loaded machine between two ticks
     assert not ticker.tick() and pub.sent == []  # not yet a period since it was made
     c.add("published", 3)
-    _time.sleep(0.06)
+    _time.sleep(0.55)
     assert ticker.tick(attachment=b"x") and not ticker.tick()
     assert len(pub.sent) == 1 and pub.sent[0][0].published == 3 and pub.sent[0][1] == {"attachment": b"x"}
