@@ -41,7 +41,7 @@ log = logging.getLogger("polartrack.detector")
 class DetectorSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    max_frames: int = Field(16, ge=1, description="Frames held (oldest dropped): bounds memory. Twice the "
+    max_frames: int = Field(24, ge=1, description="Frames held (oldest dropped): bounds memory. Ten more than the "
                             "tracker's max_lag_frames: frames reach the detector before the tracker learns of them")
     wait_frame_s: float = Field(1.0, ge=0, description="How long a query waits for its frame's image to arrive")
 

@@ -34,7 +34,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
     ids = itertools.count(1)
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
-        infos = InfoQueue(inbox, cfg.skip_stale, cfg.max_lag_frames, c, log)
+        infos = InfoQueue(inbox, cfg.skip_stale, cfg.lag_frames(), c, log)
         querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
         pub_est = publisher(session, bus.key("track/multi_estimate"))
         pub_status = publisher(session, bus.key("status/tracker"))

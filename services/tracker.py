@@ -46,10 +46,13 @@ class TrackerServiceSettings(BaseModel):
     client: str = Field("tracker", description="name in queries (the detector caches regions per client)")
     query_timeout_s: float = Field(2.0, gt=0, description="querier timeout: no reply by then = no observation")
     skip_stale: bool = Field(False, description="live source: skip stale frames (see max_lag_frames)")
-    max_lag_frames: int = Field(
-        10, ge=0, description="live source: frames are tracked in order while at most this many newer ones "
-        "wait; older ones are stale, skipped and counted (0: always the newest). Keep it well below the "
-        "detector's max_frames (16): a query must reach the detector before its frame is dropped there")
+    max_lag_frames: int | None = Field(
+        None, ge=0, description="live source: frames are tracked in order while at most this many newer ones "
+        "wait; older ones are stale, skipped and counted (0: always the newest). Default: 14 for the "
+        "single-target filters, which keep up with 30 fps on average, so that a burst of slow frames is "
+        "caught up; 0 for the multi-target ones, slower than the frame rate, where a lag would only add "
+        "latency. Keep it well below the detector's max_frames (24): a query must reach the detector "
+        "before its frame is dropped there")
     publish_particles: bool = Field(True, description="publish the particle cloud every frame")
     detector_wait_s: float = Field(30.0, ge=0, description="wait this long for the detector at start")
     template_timeout_s: float = Field(30.0, gt=0, description="timeout of the template query (first frame)")
@@ -61,6 +64,10 @@ class TrackerServiceSettings(BaseModel):
         if self.init_box is None and not self.multi:
             raise ValueError("give init_box (X,Y,W,H of the target in the first frame) or multi (a multi-target run)")
         return self
+
+    def lag_frames(self) -> int:
+        """``max_lag_frames``, or this mode's default."""
+        return self.max_lag_frames if self.max_lag_frames is not None else (0 if self.multi else 14)
 
 
 def warm_up() -> None:
@@ -87,10 +94,10 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
     st = cfg.settings
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
-        infos = InfoQueue(inbox, cfg.skip_stale, cfg.max_lag_frames, c, log)
+        infos = InfoQueue(inbox, cfg.skip_stale, cfg.lag_frames(), c, log)
         # subscribed before any frame can arrive; dropped on the first frame if the source's
         # homography makes stabilisation unnecessary ("auto")
-        images = (FrameImages(session, bus.key("frame/image"), c, keep=cfg.max_lag_frames + 3)
+        images = (FrameImages(session, bus.key("frame/image"), c, keep=cfg.lag_frames() + 3)
                   if st.stabilise != "off" else None)
         querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
         pub_est = publisher(session, bus.key("track/estimate"))
@@ -186,8 +193,10 @@ def main(argv: list[str] | None = None) -> int:
                    metavar="X,Y,W,H", help="target box in the first frame")
     p.add_argument("--client", help="client name in queries")
     p.add_argument("--skip-stale", dest="skip_stale", action="store_const", const=True, help="live source")
+    p.add_argument("--max-lag-frames", dest="max_lag_frames", type=int, metavar="N",
+                   help="live source: frames tracked in order while at most N newer ones wait")
     args = p.parse_args(argv)
-    bus, cfg = options.load("tracker", args, TrackerServiceSettings, ["init_box", "client", "skip_stale"])
+    bus, cfg = options.load("tracker", args, TrackerServiceSettings, ["init_box", "client", "skip_stale", "max_lag_frames"])
     from services.bus import setup_logging
 
     setup_logging("tracker", args.log_level)

@@ -94,3 +94,15 @@ def test_malformed_info_is_counted_and_the_next_one_taken():
 def test_negative_lag_is_refused():
     with pytest.raises(ValueError, match="max_lag_frames"):
         _queue(True, -1, [])
+
+
+def test_lag_budget_defaults_by_mode():
+    """Single-target filters keep up on average and get a lag budget; the multi-target ones, slower
+    than the frame rate, always take the newest frame; an explicit value wins."""
+    from services.tracker import TrackerServiceSettings
+
+    assert TrackerServiceSettings(init_box=(1, 2, 3, 4)).lag_frames() == 14
+    assert TrackerServiceSettings(multi="{}").lag_frames() == 0
+    assert TrackerServiceSettings(init_box=(1, 2, 3, 4), max_lag_frames=3).lag_frames() == 3
+    with pytest.raises(ValueError):
+        TrackerServiceSettings(init_box=(1, 2, 3, 4), max_lag_frames=-1)
