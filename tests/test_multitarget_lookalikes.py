@@ -47,7 +47,7 @@ def test_lookalikes_stand_on_the_walkers_paths_in_turned_shirts_behind_everyone(
             assert any(np.array_equal(first.image[y, x], o.colours[1]) for o in scene.lookalikes)
             shown += np.array_equal(first.image[y, x], la.colours[1])
     assert shown >= len(scene.lookalikes) // 2  # most are not hidden by a nearer look-alike
-    # negative control: without look-alikes those pixels are floor
+    # negative control: without look-alikes no shirt is there
     bare = PeopleScene(cfg.model_copy(update={"lookalikes_per_person": 0}), seed=5)
     assert bare.lookalikes == []
     for la in scene.lookalikes:
