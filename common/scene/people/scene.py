@@ -1,12 +1,14 @@
 """``PeopleScene``: a deterministic, seeded surveillance video of several walking people.
 
 Everything random comes from ``numpy.random.default_rng([seed, 2, k])`` (one stream per component
-k: people, clutter, background) and the sensor noise of frame ``i`` from
+k: people, clutter, background, lookalikes) and the sensor noise of frame ``i`` from
 ``default_rng([seed, 1, i])``, so ``scene.frame(i)`` is bit-identical in any order and process.
 
 People walk along nearby horizontal lanes, alternately left-to-right and right-to-left, each
 passing the middle of the image at a random time in the middle of the run: people walking
-opposite ways cross, and the nearer one (lower in the image) hides the other.
+opposite ways cross, and the nearer one (lower in the image) hides the other. Look-alikes (people
+standing still in clothes like a walker's) stand on the walkers' paths, drawn into the static
+background behind everyone: clutter, label 0, no ground truth.
 ``scene.crossings`` lists ``(i, j, frame)`` for every pair whose body axes pass each other.
 """
 
@@ -23,7 +25,7 @@ from .render import SHIRTS, SKIN, TROUSERS, apply_light, background, draw_person
 
 _NOISE_TAG = 1
 _CONTENT_TAG = 2
-_STREAMS = ("people", "clutter", "background")
+_STREAMS = ("people", "clutter", "background", "lookalikes")
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,15 @@ class Walker:
         return self.phase0 + 2.0 * np.pi * self.speed * t / stride
 
 
+@dataclass(frozen=True)
+class Lookalike:
+    """A static person-shaped clutter figure, drawn into the background."""
+
+    pose: body.Pose
+    colours: np.ndarray  # (10, 3) uint8
+    feet_y: float
+
+
 class PeopleScene:
     """Seeded scene; ``frame(i)`` renders frame i with its ground truth."""
 
@@ -105,8 +116,35 @@ class PeopleScene:
             clutter.append(hue_shifted(w.colours[rc.choice([1, 6])], rc.uniform(-8, 8)))
         lanes = (min(w.feet_y for w in self.walkers), max(w.feet_y for w in self.walkers))
         self.background = background(cfg.width, cfg.height, clutter, rngs["clutter"], cfg.person_height_px, lanes)
+        self.lookalikes = self._lookalikes(rngs["lookalikes"])
+        blank = np.zeros(self.background.shape[:2], np.uint8)
+        for la in sorted(self.lookalikes, key=lambda a: a.feet_y):
+            draw_person(self.background, blank, la.pose, la.colours, 0)
         self.noise = SensorNoise(cfg.noise_sigma)
         self.crossings = self._crossings()
+
+    def _lookalikes(self, rng: np.random.Generator) -> list[Lookalike]:
+        """Static person-shaped clutter: per walking person, ``lookalikes_per_person`` people standing
+        still just behind its lane where it passes at stratified random times, in its shirt with the hue
+        turned, other trousers and a random skin (see :class:`~.config.PeopleSceneConfig`)."""
+        cfg = self.config
+        duration = cfg.n_frames / cfg.fps
+        n = cfg.lookalikes_per_person
+        lo, hi = cfg.lookalike_hue_deg
+        out = []
+        for w in self.walkers:
+            for j in range(n):
+                t = duration * (j + rng.uniform(0.15, 0.85)) / n
+                turn = rng.choice([-1.0, 1.0]) * rng.uniform(lo, hi)
+                others = [c for c in TROUSERS if tuple(c) != tuple(w.colours[6])]  # not the person's trousers
+                trousers = others[rng.integers(len(others))]
+                colours = part_colours(hue_shifted(w.colours[1], turn), trousers, SKIN[rng.integers(len(SKIN))])
+                feet_y = w.feet_y - rng.uniform(2.0, 8.0)
+                h = w.height * rng.uniform(0.95, 1.05)
+                p = body.pose(w.x(t), feet_y, h, rng.choice([-1.0, 1.0]), rng.uniform(0, 2 * np.pi),
+                              np.deg2rad(4.0), np.deg2rad(4.0))
+                out.append(Lookalike(p, colours, feet_y))
+        return out
 
     def __len__(self) -> int:
         return self.config.n_frames
