@@ -61,6 +61,12 @@ def query_factor(q: ScoreQuery) -> float:
     return k
 
 
+OBSERVATIONS_KEPT = 4
+"""Prepared observations kept (per client, frame, factor and template): the scale search and the
+template adaptation ask about the frame the filter's query just prepared, so a few are enough,
+and each can hold a full frame's pyramid (about 11 MB at 1280x720), fewer than the frames held."""
+
+
 class DetectorCore:
     """The detector without the bus: frames in, queries in, replies out."""
 
@@ -94,7 +100,7 @@ class DetectorCore:
         if obs is None:
             cache = self.caches.setdefault(q.client, FrameCache())
             obs = self.observations[key] = frame_observation(q.frame_index, time_s, image, matcher, cache, k)
-            while len(self.observations) > self.settings.max_frames:
+            while len(self.observations) > min(OBSERVATIONS_KEPT, self.settings.max_frames):
                 self.observations.popitem(last=False)
         return obs
 
