@@ -34,7 +34,6 @@ class PolarMatcher:
         kc_one = column_harmonics() if kc is None else np.asarray(kc, np.int64)
         kc_all = np.tile(kc_one, nch)
         m = kc_all.size
-        self._colmap = np.arange(m)  # candidates' columns in canonical order
         self._norm_h = float(np.linalg.norm(H))
         self.h_min = int(kc_all.min()) - 6
         self.h_max = int(kc_all.max()) + 6
@@ -91,7 +90,7 @@ class PolarMatcher:
                 f"{self.template.channels}: use the same colour mode for both"
             )
         valid = prep.in_support(xy[:, 0], xy[:, 1])
-        cols, norm2 = sample_columns(prep, xy[:, 0], xy[:, 1], valid, self._colmap)
+        cols, norm2 = sample_columns(prep, xy[:, 0], xy[:, 1], valid)
         return cols, norm2, valid
 
     def score_grid(self, prep: PreparedFrame, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -110,25 +110,24 @@ slots ``didx[p, s, ch, d]`` with imaginary sign ``dsign`` (conjugated where -1).
         norm2[n] += nrm
 
 
-@lru_cache(maxsize=16)
-def _dest_tables(colmap: tuple[int, ...], nch: int) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+@lru_cache(maxsize=4)
+def _dest_tables(nch: int) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per level: flat complex slot ``col * 12 + row`` (P, 6, C, 2), imaginary sign (P, 6, 2)
-    and count (P, 6) of each sampled value, for output column order ``colmap``."""
-    cm = np.asarray(colmap, np.int64)
+    and count (P, 6) of each sampled value, columns in canonical order (channel-major)."""
     out = {}
     for level, (rows, cols, conj, count) in _DEST.items():
         idx = np.zeros(rows.shape[:2] + (nch, 2), np.int64)
         for ch in range(nch):
-            idx[:, :, ch, :] = cm[cols + ch * N_COLUMNS] * N_ROWS + rows
+            idx[:, :, ch, :] = (cols + ch * N_COLUMNS) * N_ROWS + rows
         sign = np.where(conj, -1.0, 1.0).astype(np.float32)
         out[level] = (idx, sign, count)
     return out
 
 
-def sample_columns(prep: PreparedFrame, x: np.ndarray, y: np.ndarray, valid: np.ndarray,
-                   colmap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """P-matrices transposed, (N, 34 C, 12) complex64 with canonical column ``c`` stored at
-    ``colmap[c]``, and their squared norms (N,). Zero where not ``valid``.
+def sample_columns(prep: PreparedFrame, x: np.ndarray, y: np.ndarray,
+                   valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """P-matrices transposed, (N, 34 C, 12) complex64, columns in canonical order, and their
+    squared norms (N,). Zero where not ``valid``.
 
     Callers make sure ``valid`` hypotheses are in support (``prep.in_support``): taps outside
     the prepared grid are clamped, never read out of bounds, but give meaningless values.
@@ -137,7 +136,7 @@ def sample_columns(prep: PreparedFrame, x: np.ndarray, y: np.ndarray, valid: np.
     y = np.ascontiguousarray(y, np.float64)
     valid = np.ascontiguousarray(valid, np.bool_)
     m = N_COLUMNS * prep.channels
-    tables = _dest_tables(tuple(int(c) for c in colmap), prep.channels)
+    tables = _dest_tables(prep.channels)
     out = np.zeros((x.shape[0], m * N_ROWS * 2), np.float32)
     norm2 = np.zeros(x.shape[0], np.float64)
     levels = []
@@ -159,5 +158,5 @@ def sample_columns(prep: PreparedFrame, x: np.ndarray, y: np.ndarray, valid: np.
 
 def sample_pmatrices(prep: PreparedFrame, x: np.ndarray, y: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """P-matrices (N, 12, 34 C) complex64 at pixel centres ``(x, y)``; zero where not ``valid``."""
-    cols, _ = sample_columns(prep, x, y, valid, np.arange(N_COLUMNS * prep.channels))
+    cols, _ = sample_columns(prep, x, y, valid)
     return np.ascontiguousarray(cols.transpose(0, 2, 1))
