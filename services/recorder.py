@@ -116,7 +116,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
         log.info("recording %s** to %s", prefix, cfg.out)
         status = StatusTicker(pub_status, c)
 
-        def write_one(sample) -> None:
+        def write_one(sample) -> str:
             key = str(sample.key_expr)
             topic = key[len(prefix):] if key.startswith(prefix) else key
             data = payload_bytes(sample)
@@ -130,13 +130,16 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                 except Exception as exc:  # noqa: BLE001
                     c.add("malformed")
                     log.warning("malformed run config: %s", exc)
+            return topic
 
         segments = SegmentPopulator()
         while not stopper.stopped:
             if inbox.wait(0.2):
+                images = False
                 while (s := inbox.pop("all")) is not None:
-                    write_one(s)
-                segments.populate()  # the frames' shared memory, once it is mapped
+                    images |= write_one(s) == "frame/image"
+                if images:
+                    segments.populate()  # the frames' shared memory, mapped with the first frame
             if status.tick():  # and the file flushed as often
                 sink.flush()
         # a short grace period for messages in flight, then close the file properly
