@@ -79,25 +79,28 @@ def attribute_ratio(rho: np.ndarray, lam: float) -> np.ndarray:
 
 
 def association_probabilities(log_gauss: np.ndarray, valid: np.ndarray, volume: np.ndarray,
-                              p_detect: float, p_gate: float, clutter_density: float,
+                              p_detect: float | np.ndarray, p_gate: float, clutter_density: float,
                               attribute: np.ndarray | None = None) -> np.ndarray:
     """beta (..., M+1) of eq. 12 (column 0: no measurement is the target's), summing to 1.
 
     ``log_gauss`` (..., M): log N(z_j; z^, S); ``valid`` (..., M): which measurement slots are real
-    (m = valid.sum(-1)); ``volume`` (...): gate area V; ``attribute`` (..., M) or None: a_j.
+    (m = valid.sum(-1)); ``volume`` (...): gate area V; ``attribute`` (..., M) or None: a_j;
+    ``p_detect``: a number or one P_D per gate (...) (see :mod:`.occlusion`).
     """
     valid = np.asarray(valid, bool)
     m = valid.sum(axis=-1).astype(float)
     v = np.asarray(volume, float)
-    pdpg = p_detect * p_gate
+    pdpg = np.asarray(p_detect, float) * p_gate
     log_mu_m1 = log_poisson(m - 1, clutter_density * v)
     log_mu_m = log_poisson(m, clutter_density * v)
     # eq. 12 numerators in logs; the common 1/D cancels in the normalisation.
-    log_t = (math.log(pdpg) + log_mu_m1 - np.log(np.maximum(m, 1)) - (m - 1) * np.log(v) - math.log(p_gate))[..., None] + log_gauss
+    with np.errstate(divide="ignore"):
+        log_pdpg, log_miss = np.log(pdpg), np.log1p(-pdpg)
+    log_t = (log_pdpg + log_mu_m1 - np.log(np.maximum(m, 1)) - (m - 1) * np.log(v) - math.log(p_gate))[..., None] + log_gauss
     if attribute is not None:
         log_t = log_t + np.log(attribute)
     log_t = np.where(valid, log_t, -np.inf)
-    log_0 = (math.log1p(-pdpg) if pdpg < 1 else -np.inf) + log_mu_m - m * np.log(v)
+    log_0 = log_miss + log_mu_m - m * np.log(v)
     log_all = np.concatenate([np.asarray(log_0)[..., None] * np.ones(log_t.shape[:-1] + (1,)), log_t], axis=-1)
     mx = np.max(log_all, axis=-1, keepdims=True)
     w = np.exp(log_all - mx)
@@ -133,11 +136,12 @@ def pda_log_likelihood(diff_pred: np.ndarray, beta: np.ndarray, valid: np.ndarra
     return np.where(detect > 1e-9, ll, 0.0)
 
 
-def jpda_probabilities(log_gauss: np.ndarray, gated: np.ndarray, p_detect: float, p_gate: float,
+def jpda_probabilities(log_gauss: np.ndarray, gated: np.ndarray, p_detect: float | np.ndarray, p_gate: float,
                        clutter_density: float, max_events: int = 200_000) -> np.ndarray:
     """beta (T, M+1) of joint PDA for T targets sharing M measurements.
 
-    ``log_gauss`` (T, M): log N(z_j; z^_t, S_t); ``gated`` (T, M): z_j inside target t's gate.
+    ``log_gauss`` (T, M): log N(z_j; z^_t, S_t); ``gated`` (T, M): z_j inside target t's gate;
+    ``p_detect``: a number or one P_D per target (T,).
     Exact enumeration of the feasible joint events (each target: one gated measurement or none, no
     measurement used twice); raises ValueError above ``max_events`` events.
     """
@@ -146,9 +150,11 @@ def jpda_probabilities(log_gauss: np.ndarray, gated: np.ndarray, p_detect: float
     n_events = math.prod(len(c) for c in choices)
     if n_events > max_events:
         raise ValueError(f"JPDA: {n_events} joint events exceed {max_events}; shrink the gates or max_measurements")
-    log_miss = math.log1p(-p_detect * p_gate) if p_detect * p_gate < 1 else -np.inf
-    log_hit = np.full((t_n, m_n + 1), log_miss)
-    log_hit[:, 1:] = math.log(p_detect) + log_gauss - math.log(clutter_density)
+    pd = np.broadcast_to(np.asarray(p_detect, float), (t_n,))
+    with np.errstate(divide="ignore"):
+        log_miss, log_pd = np.log1p(-pd * p_gate), np.log(pd)
+    log_hit = np.repeat(log_miss[:, None], m_n + 1, axis=1)
+    log_hit[:, 1:] = log_pd[:, None] + log_gauss - math.log(clutter_density)
     events = np.array(list(itertools.product(*choices)), dtype=np.intp).reshape(-1, t_n)
     used = np.sort(events, axis=1)
     ok = ~np.any((used[:, 1:] == used[:, :-1]) & (used[:, 1:] > 0), axis=1)

@@ -19,6 +19,7 @@ from .config import MultiTargetConfig
 from .gating import Measurements, gate_gamma, measure, units, update_measurement_cov
 from .likelihood import AssociationTerms, TargetModels, log_likelihood
 from .motion import predict, project_to_structure
+from .occlusion import detection_probability
 from .state import InitError, MultiInit, MultiTrackState
 
 RNG_STREAMS = ("init", "motion", "genetic", "resample", "mcmc")
@@ -54,7 +55,10 @@ class MultiTargetFilter:
         t_n, n = len(parts), cfg.n_particles
         pos = parts[:, None] + cfg.init_spread * self.rngs["init"].standard_normal((t_n, n, body.n_parts, 2))
         pos = body.to_absolute(project_to_structure(body.to_relative(pos), body, height[:, None]))
-        self.particles = np.concatenate([pos, np.zeros_like(pos)], axis=-1)
+        vel = np.zeros_like(pos)
+        if cfg.init_speed_spread > 0:
+            vel += cfg.init_speed_spread * self.rngs["init"].standard_normal((t_n, n, 1, 2))
+        self.particles = np.concatenate([pos, vel], axis=-1)
         self.log_w = np.full((t_n, n), -np.log(n))
         self.clock = FrameClock(None)
         g = cfg.gate
@@ -96,12 +100,22 @@ class MultiTargetFilter:
         a = cfg.association_model
         mean, cov = self.moments()
         meas = measure(mean, cov, self.r_cov, self.targets.box_size, self.targets.references, evidence, cfg.gate)
+        p_detect = self.detection_probability(mean)
         if cfg.association == "jpda":
-            return meas, self._jpda_terms(meas)
+            return meas, self._jpda_terms(meas, p_detect)
         lg = log_gauss2(meas.z - meas.centre[:, :, None], meas.s_cov[:, :, None])
         attr = attribute_ratio(meas.rho, a.attribute_lambda) if cfg.association == "elpda" else None
-        beta = association_probabilities(lg, meas.valid, meas.volume, a.p_detect, cfg.gate.p_gate, a.clutter_density, attr)
+        beta = association_probabilities(lg, meas.valid, meas.volume, p_detect[:, None], cfg.gate.p_gate,
+                                         a.clutter_density, attr)  # fmt: skip
         return meas, self._terms(meas.z, meas.valid, beta, meas.volume, meas.centre, cfg.association == "pda")
+
+    def detection_probability(self, parts: np.ndarray) -> np.ndarray:
+        """(T,) P_D of every target at the predicted part centres ``parts`` (T, P, 2): scaled by its
+        visible share when ``occlusion_floor`` is set (:mod:`.occlusion`)."""
+        a = self.config.association_model
+        if a.occlusion_floor is None:
+            return np.full(self.n_targets, a.p_detect)
+        return detection_probability(a.p_detect, parts, self.targets.box_size, a.occlusion_floor)
 
     def _terms(self, z, valid, beta, volume, centre, combined: bool = False) -> AssociationTerms:
         g = self.config.gate
@@ -113,7 +127,7 @@ class MultiTargetFilter:
                                 self.config.gate.p_gate, units(self.body.n_parts, self.config.gate.level)[1],
                                 centre, combined)  # fmt: skip
 
-    def _jpda_terms(self, meas: Measurements) -> AssociationTerms:
+    def _jpda_terms(self, meas: Measurements, p_detect: np.ndarray) -> AssociationTerms:
         """JPDA: per unit, every target's measurements pooled into one set shared by all targets."""
         cfg = self.config
         a = cfg.association_model
@@ -122,7 +136,7 @@ class MultiTargetFilter:
         diff = z - meas.centre[:, :, None]
         gated = meas.valid.transpose(1, 0, 2).reshape(1, q_n, -1) & (np.sum(diff * diff, axis=-1) <= cfg.gate.gate_size**2)
         lg = log_gauss2(diff, meas.s_cov[:, :, None])
-        beta = np.stack([jpda_probabilities(lg[:, q], gated[:, q], a.p_detect, cfg.gate.p_gate, a.clutter_density)
+        beta = np.stack([jpda_probabilities(lg[:, q], gated[:, q], p_detect, cfg.gate.p_gate, a.clutter_density)
                          for q in range(q_n)], axis=1)  # fmt: skip
         return self._terms(np.ascontiguousarray(z), gated, beta, meas.volume, meas.centre)
 

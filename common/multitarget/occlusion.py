@@ -1,0 +1,46 @@
+"""Which targets hide which: the detection probability of a partly hidden target.
+
+A person further from the camera (feet higher in the image) is hidden where a nearer one stands in
+front of it. While it is hidden its measurements are not its own: the structure's colour match
+slides onto the visible pixels around the occluder, or onto the occluder itself. With a constant
+P_D the association keeps trusting those measurements and the target is dragged off its path; with
+P_D scaled by the visible share of the target, beta_0 ("no measurement is the target's") takes
+over as the target disappears, and the filter coasts on its motion model until it reappears.
+
+    P_D,t = P_D * max(1 - covered_t, floor)
+
+``covered_t``: the share of target t's predicted bounding box (the union box of its predicted part
+boxes) covered by the bounding boxes of the targets in front of it (feet lower in the image),
+summed over those targets and capped at 1. The union of two occluders' boxes is over-counted only
+where they overlap each other, which the cap absorbs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .appearance import part_boxes
+
+
+def bounding_boxes(parts: np.ndarray, box_size: np.ndarray) -> np.ndarray:
+    """(T, 4) x0, y0, x1, y1 of the union box of every target's part boxes; ``parts`` and
+    ``box_size`` (T, P, 2)."""
+    b = part_boxes(parts, box_size)
+    return np.concatenate([b[..., :2].min(axis=1), b[..., 2:].max(axis=1)], axis=-1)
+
+
+def covered_fraction(boxes: np.ndarray) -> np.ndarray:
+    """(T,) share of each box (T, 4) covered by the boxes in front of it (larger y1 = nearer), capped at 1.
+
+    Ties in y1 hide neither box."""
+    x0, y0, x1, y1 = boxes.T
+    w = np.maximum(np.minimum(x1[:, None], x1[None]) - np.maximum(x0[:, None], x0[None]), 0.0)
+    h = np.maximum(np.minimum(y1[:, None], y1[None]) - np.maximum(y0[:, None], y0[None]), 0.0)
+    front = y1[None, :] > y1[:, None]  # [t, u]: u stands in front of t
+    area = np.maximum((x1 - x0) * (y1 - y0), 1e-12)
+    return np.minimum(np.sum(np.where(front, w * h, 0.0), axis=1) / area, 1.0)
+
+
+def detection_probability(p_detect: float, parts: np.ndarray, box_size: np.ndarray, floor: float) -> np.ndarray:
+    """(T,) P_D of every target: ``p_detect`` times its visible share (at least ``floor``)."""
+    return p_detect * np.maximum(1.0 - covered_fraction(bounding_boxes(parts, box_size)), floor)

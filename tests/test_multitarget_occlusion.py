@@ -1,0 +1,110 @@
+"""Occlusion-aware detection probability (:mod:`common.multitarget.occlusion`) and the initial velocity spread."""
+
+import math
+
+import numpy as np
+import pytest
+
+from common.multitarget import HistogramEvidence, MultiInit, body_model, make_filter, method_config
+from common.multitarget import association as da
+from common.multitarget.occlusion import bounding_boxes, covered_fraction, detection_probability
+from common.scene.people import PeopleScene, PeopleSceneConfig
+
+
+def test_covered_fraction_by_hand():
+    boxes = np.array([
+        [0.0, 0.0, 10.0, 20.0],   # far (y1 = 20)
+        [5.0, 2.0, 15.0, 22.0],   # nearer: covers x 5-10, y 2-20 of box 0 -> 5 * 18 / 200 = 0.45
+        [100.0, 0.0, 110.0, 20.0],  # far away from both: nothing in front of it
+    ])  # fmt: skip
+    cov = covered_fraction(boxes)
+    assert cov == pytest.approx([0.45, 0.0, 0.0])  # the nearest box is never covered by a farther one
+
+
+def test_covered_fraction_caps_at_one_and_ties_hide_nothing():
+    far = [0.0, 0.0, 10.0, 10.0]
+    front = [[-1.0, -1.0, 11.0, 11.0], [0.0, 0.0, 10.0, 12.0]]  # both nearer and both covering all of it
+    assert covered_fraction(np.array([far, *front]))[0] == 1.0
+    tie = np.array([[0.0, 0.0, 10.0, 10.0], [2.0, 0.0, 12.0, 10.0]])  # same feet line: neither in front
+    assert covered_fraction(tie) == pytest.approx([0.0, 0.0])
+
+
+def test_detection_probability_scales_with_the_visible_share():
+    parts = np.array([[[5.0, 10.0]], [[10.0, 12.0]], [[5.0, 10.0]]])  # 1-part bodies, box 10 x 20 around each
+    size = np.full((3, 1, 2), [10.0, 20.0])
+    boxes = bounding_boxes(parts, size)
+    assert boxes[0] == pytest.approx([0.0, 0.0, 10.0, 20.0])
+    # target 0 and 2 coincide (a tie); target 1 is in front of both and covers (5 * 18) / 200 of each
+    pd = detection_probability(0.9, parts, size, floor=0.05)
+    assert pd == pytest.approx([0.9 * 0.55, 0.9, 0.9 * 0.55])
+    hidden = np.array([[[5.0, 10.0]], [[5.0, 12.0]]])
+    assert detection_probability(0.9, hidden, np.full((2, 1, 2), [10.0, 20.0]), floor=0.05)[0] == pytest.approx(0.9 * 0.1)
+    assert detection_probability(0.9, hidden, np.full((2, 1, 2), [10.0, 20.0]), floor=0.2)[0] == pytest.approx(0.9 * 0.2)
+
+
+def test_per_gate_detection_probability_in_eq_12():
+    lg = np.log(np.array([[0.01, 0.002], [0.01, 0.002]]))
+    valid = np.ones((2, 2), bool)
+    per_gate = da.association_probabilities(lg, valid, np.array([100.0, 100.0]), np.array([0.9, 0.2]), 0.95, 0.01)
+    for g, pd in enumerate([0.9, 0.2]):
+        alone = da.association_probabilities(lg[g], valid[g], np.array(100.0), pd, 0.95, 0.01)
+        assert per_gate[g] == pytest.approx(alone, rel=1e-12)
+    assert per_gate.sum(axis=-1) == pytest.approx([1.0, 1.0])
+    # classical form beta_0 : beta_j = lambda (1 - P_D P_G) / P_D : N_j -- a hidden target's gate goes to beta_0
+    b = 0.01 * (1 - 0.2 * 0.95) / 0.2
+    assert per_gate[1] == pytest.approx(np.array([b, 0.01, 0.002]) / (b + 0.012), rel=1e-12)
+    assert per_gate[1, 0] > 0.75 > 0.2 > per_gate[0, 0]
+
+
+def test_per_target_detection_probability_in_jpda():
+    # two targets, one measurement in both gates; joint events: (0,0), (1,0), (0,1) -- by hand
+    lg = np.log(np.array([[0.02], [0.01]]))
+    gated = np.ones((2, 1), bool)
+    pd, pg, lam = np.array([0.9, 0.3]), 0.95, 0.01
+    beta = da.jpda_probabilities(lg, gated, pd, pg, lam)
+    miss = 1 - pd * pg
+    hit = pd * np.exp(lg[:, 0]) / lam
+    e00, e10, e01 = miss[0] * miss[1], hit[0] * miss[1], miss[0] * hit[1]
+    tot = e00 + e10 + e01
+    assert beta[0] == pytest.approx([(e00 + e01) / tot, e10 / tot], rel=1e-12)
+    assert beta[1] == pytest.approx([(e00 + e10) / tot, e01 / tot], rel=1e-12)
+    same = da.jpda_probabilities(lg, gated, 0.9, pg, lam)
+    assert same == pytest.approx(da.jpda_probabilities(lg, gated, np.array([0.9, 0.9]), pg, lam), rel=1e-12)
+    assert not np.allclose(beta, same)
+
+
+def _filter(**cfg):
+    scene = PeopleScene(PeopleSceneConfig(n_people=2, n_frames=10), seed=1)
+    f0 = scene.frame(0)
+    config = method_config("epmcmc-elpda", n_particles=400, **cfg)
+    init = MultiInit.from_truth(f0.truth.parts, f0.truth.boxes, body_model(config.n_parts))
+    return make_filter(config, init, HistogramEvidence(f0.image), 3)
+
+
+def test_filter_lowers_p_detect_of_the_hidden_target_only():
+    flt = _filter()
+    a = flt.config.association_model
+    parts = flt.moments()[0]
+    near = int(np.argmax(bounding_boxes(parts, flt.targets.box_size)[:, 3]))
+    far = 1 - near
+    apart = parts.copy()
+    apart[far] += parts[near, 0] - parts[far, 0] + np.array([80.0, -1.0])  # 80 px to the side
+    assert flt.detection_probability(apart) == pytest.approx([a.p_detect, a.p_detect])
+    behind = parts.copy()
+    behind[far] += parts[near, 0] - parts[far, 0] - np.array([0.0, 1.0])  # same place, feet 1 px higher
+    pd = flt.detection_probability(behind)
+    assert pd[near] == a.p_detect and pd[far] < 0.2 * a.p_detect
+    off = _filter(association_model=flt.config.association_model.model_copy(update={"occlusion_floor": None}))
+    assert off.detection_probability(behind) == pytest.approx([a.p_detect, a.p_detect])
+
+
+def test_initial_velocities_spread_per_body():
+    flt = _filter()
+    vel = flt.particles[..., 2:]  # (T, N, P, 2)
+    assert np.all(vel == vel[:, :, :1])  # one body velocity per particle, shared by every part
+    sd = vel[:, :, 0].std(axis=1)
+    assert sd == pytest.approx(np.full((2, 2), flt.config.init_speed_spread), rel=0.15)
+    still = _filter(init_speed_spread=0.0)
+    assert not still.particles[..., 2:].any()
+    np.testing.assert_array_equal(still.particles[..., :2], flt.particles[..., :2])  # positions drawn first, unchanged
+    assert math.isclose(float(vel.mean()), 0.0, abs_tol=4.0)
