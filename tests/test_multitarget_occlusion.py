@@ -108,3 +108,18 @@ def test_initial_velocities_spread_per_body():
     assert not still.particles[..., 2:].any()
     np.testing.assert_array_equal(still.particles[..., :2], flt.particles[..., :2])  # positions drawn first, unchanged
     assert math.isclose(float(vel.mean()), 0.0, abs_tol=4.0)
+
+
+def test_depth_order_comes_from_the_root_not_the_noisy_limbs():
+    flt = _filter()
+    a = flt.config.association_model
+    parts = flt.moments()[0]
+    near = int(np.argmax(parts[:, 0, 1] + flt.targets.height))  # feet of the rest pose: root + a share of H
+    far = 1 - near
+    behind = parts.copy()
+    behind[far] += parts[near, 0] - parts[far, 0] - np.array([0.0, 2.0])  # same place, standing 2 px higher
+    behind[far, 2:, 1] += 10.0  # ... but with its limbs estimated 10 px low (lower than the near one's)
+    pd = flt.detection_probability(behind)
+    assert pd[near] == a.p_detect and pd[far] < 0.2 * a.p_detect
+    raw = detection_probability(a.p_detect, behind, flt.targets.box_size, a.occlusion_floor)  # judged on the limbs
+    assert raw[far] == a.p_detect  # the limb boxes would have put the far person in front

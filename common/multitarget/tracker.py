@@ -110,12 +110,17 @@ class MultiTargetFilter:
         return meas, self._terms(meas.z, meas.valid, beta, meas.volume, meas.centre, cfg.association == "pda")
 
     def detection_probability(self, parts: np.ndarray) -> np.ndarray:
-        """(T,) P_D of every target at the predicted part centres ``parts`` (T, P, 2): scaled by its
-        visible share when ``occlusion_floor`` is set (:mod:`.occlusion`)."""
+        """(T,) P_D of every target predicted at ``parts`` (T, P, 2): scaled by its visible share when
+        ``occlusion_floor`` is set (:mod:`.occlusion`). Who hides whom is judged on each body standing in
+        its rest pose at the predicted root: the limbs' estimates are the noisiest (several px), and a
+        lower leg a few px off would swap the depth order of two people on nearby lanes."""
         a = self.config.association_model
         if a.occlusion_floor is None:
             return np.full(self.n_targets, a.p_detect)
-        return detection_probability(a.p_detect, parts, self.targets.box_size, a.occlusion_floor)
+        h = self.targets.height[:, None, None]
+        rel = np.broadcast_to(self.body.offset * h, parts.shape).copy()
+        rel[:, 0] = parts[:, 0]
+        return detection_probability(a.p_detect, self.body.to_absolute(rel), self.targets.box_size, a.occlusion_floor)
 
     def _terms(self, z, valid, beta, volume, centre, combined: bool = False) -> AssociationTerms:
         g = self.config.gate
