@@ -23,11 +23,11 @@ class MotionConfig(_Frozen):
     """Constant velocity applied jointly with the pictorial structure (paper section 4; :mod:`.motion`)."""
 
     body_accel: float = Field(
-        40.0, ge=0,
+        15.0, ge=0,
         description="Std of the acceleration shared by all parts of a body (white-noise acceleration), "
         "px/s per sqrt(s): the whole person speeds up, slows or turns. Set on the synthetic scene (seeds "
-        "100-119): at 15 the velocity is learned too slowly (estimated -26 to -32 px/s for a person walking "
-        "at -47) and every part lags 2-3 px behind along the walking direction; at 40 the lag is under 1 px.",
+        "100-119, three runs each): 40 learned the walking speed quicker but lost people in 10 of 60 runs "
+        "(EPMCMC; JPDA-PF 15), against 6 (JPDA-PF 5) at 15; init_speed_spread gives the speed instead.",
     )
     part_jitter: float = Field(
         8.0, ge=0,
