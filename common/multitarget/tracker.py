@@ -52,6 +52,7 @@ class MultiTargetFilter:
         size = body.box[None] * height[:, None, None]
         refs = first_evidence.histograms(part_boxes(parts, size).reshape(-1, 4)).reshape(len(parts), body.n_parts, -1)
         self.targets = TargetModels(body, height, refs)
+        self._rest_pose = body.to_absolute(body.offset * height[:, None, None])  # (T, P, 2), root at 0
         t_n, n = len(parts), cfg.n_particles
         pos = parts[:, None] + cfg.init_spread * self.rngs["init"].standard_normal((t_n, n, body.n_parts, 2))
         pos = body.to_absolute(project_to_structure(body.to_relative(pos), body, height[:, None]))
@@ -117,10 +118,7 @@ class MultiTargetFilter:
         a = self.config.association_model
         if a.occlusion_floor is None:
             return np.full(self.n_targets, a.p_detect)
-        h = self.targets.height[:, None, None]
-        rel = np.broadcast_to(self.body.offset * h, parts.shape).copy()
-        rel[:, 0] = parts[:, 0]
-        return detection_probability(a.p_detect, self.body.to_absolute(rel), self.targets.box_size, a.occlusion_floor)
+        return detection_probability(a.p_detect, self._rest_pose + parts[:, :1], self.targets.box_size, a.occlusion_floor)
 
     def _terms(self, z, valid, beta, volume, centre, combined: bool = False) -> AssociationTerms:
         g = self.config.gate
