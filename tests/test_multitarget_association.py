@@ -91,7 +91,7 @@ def test_gate_is_re_estimated_from_innovations():
     r = np.broadcast_to(25.0 * np.eye(2), (1, 1, 2, 2)).copy()
     z = np.array([[[[2.0, 0.0], [0.0, 0.0]]]])
     meas = Measurements(z=z, rho=np.ones((1, 1, 2)), valid=np.array([[[True, False]]]),
-                        volume=np.ones((1, 1)), centre=np.zeros((1, 1, 2)), s_cov=r)
+                        volume=np.ones((1, 1)), centre=np.zeros((1, 1, 2)), s_cov=r, pred_cov=np.zeros((1, 1, 2, 2)))
     beta = np.array([[[0.0, 1.0, 0.0]]])
     for _ in range(30):
         r = update_measurement_cov(r, meas, beta, rate=0.3, min_sigma=1.0, max_sigma=10.0)
@@ -103,6 +103,22 @@ def test_gate_is_re_estimated_from_innovations():
     assert np.allclose(r[0, 0], 100.0 * np.eye(2), atol=1e-2)
     assert gate_gamma(0.95) == pytest.approx(5.991464547, rel=1e-9)
 
+
+
+def test_re_estimated_r_leaves_out_the_predictions_spread():
+    # covariance matching: the innovations' covariance is P + R, so R = E[nu nu^T] - P
+    from common.multitarget.gating import Measurements
+
+    r = np.broadcast_to(25.0 * np.eye(2), (1, 1, 2, 2)).copy()
+    z = np.array([[[[3.0, 0.0], [0.0, 0.0]]]])
+    beta = np.array([[[0.0, 1.0, 0.0]]])
+    for pred, expect in ((np.diag([4.0, 0.5]), np.diag([5.0, 1.0])), (np.zeros((2, 2)), np.diag([9.0, 1.0]))):
+        meas = Measurements(z=z, rho=np.ones((1, 1, 2)), valid=np.array([[[True, False]]]), volume=np.ones((1, 1)),
+                            centre=np.zeros((1, 1, 2)), s_cov=r + pred, pred_cov=pred[None, None])
+        rk = r
+        for _ in range(40):
+            rk = update_measurement_cov(rk, meas, beta, rate=0.3, min_sigma=1.0, max_sigma=10.0)
+        assert np.allclose(rk[0, 0], expect, atol=1e-3)  # 9 - 4 = 5 along x; y at the floor either way
 
 def test_residual_resampling_is_available_as_a_plain_function():
     w = np.array([0.5, 0.25, 0.125, 0.125])

@@ -98,8 +98,9 @@ class GateConfig(_Frozen):
     p_gate: float = Field(0.95, gt=0, lt=1, description="P_G, probability that the true measurement falls in the gate (sets gamma).")
     innovation_rate: float = Field(
         0.3, gt=0, le=1,
-        description="Adaptive gate: R_k = (1 - rate) R_{k-1} + rate (sum_j beta_j nu_j nu_j^T + beta_0 R_max) "
-        "(weighted innovations); the gate can then grow up to twice gate_size.",
+        description="Adaptive gate: R_k = (1 - rate) R_{k-1} + rate (sum_j beta_j nu_j nu_j^T + beta_0 R_max - P) "
+        "(weighted innovations less the prediction's spread P, covariance matching); the gate can then grow "
+        "up to twice gate_size.",
     )
     min_sigma: float = Field(2.0, gt=0, description="Adaptive gate: floor on the std of R_k, px.")
     r_in_likelihood: bool = Field(
