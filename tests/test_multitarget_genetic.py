@@ -121,3 +121,83 @@ def test_broken_exchange_rules_are_caught(rule):
     """Negative controls: the same statistical check fails for wrong acceptance rules."""
     xs, xq = _exchange_chain(rule)
     assert not (_moments_ok(xs, 0.0, 1.0) and _moments_ok(xq, 2.0, 0.5))
+
+
+def test_mutation_carries_the_velocity_by_the_given_gain():
+    body = body_model(10)
+    x = _population(10, 500, 6)
+    gain = np.linspace(0.5, 5.0, 20).reshape(10, 2)
+    moved, _ = genetic.mutate(x, body, H, 0.5, 0.0, 0.03, 5.0, np.random.default_rng(7), project=False, velocity_gain=gain)
+    plain, _ = genetic.mutate(x, body, H, 0.5, 0.0, 0.03, 5.0, np.random.default_rng(7), project=False)
+    assert np.array_equal(moved[..., :2], plain[..., :2])  # same draws, same positions
+    step = plain[..., :2] - x[..., :2]
+    assert np.abs(step).max() > 1.0
+    assert np.allclose(moved[..., 2:] - x[..., 2:], gain * step, atol=1e-9)  # every part, both axes
+    assert np.allclose(plain[..., 2:], x[..., 2:], atol=1e-9)  # negative control: no gain, velocity untouched
+
+
+@pytest.mark.parametrize("coupled", [True, False])
+def test_coupled_mutation_keeps_a_correlated_position_velocity_target_invariant(coupled):
+    """MH with the coupled mutation (a symmetric proposal, plain ratio) started in a correlated Gaussian
+    (x, v) target stays in it; it mixes the velocity only when coupled (rho_m of velocities is 0)."""
+    body = body_model(1)
+    rho, sx, sv = 0.8, 2.0, 10.0
+    gain = np.full((1, 2), rho * sv / sx if coupled else 0.0)
+
+    def log_pi(s):
+        zx, zv = s[..., 0, :2] / sx, s[..., 0, 2:] / sv
+        return -0.5 * np.sum((zx * zx - 2 * rho * zx * zv + zv * zv) / (1 - rho * rho), axis=-1)
+
+    rng = np.random.default_rng(8)
+    n = 20000
+    zx = rng.standard_normal((n, 2))
+    x0 = np.concatenate([sx * zx, sv * (rho * zx + np.sqrt(1 - rho * rho) * rng.standard_normal((n, 2)))], axis=-1)[:, None]
+    x, lp = x0.copy(), log_pi(x0)
+    for _ in range(30):
+        prop, ok = genetic.mutate(x, body, H, 1.0, 0.0, 0.02, 1.0, rng, project=False, velocity_gain=gain)
+        lpp = log_pi(prop)
+        acc = genetic.mh_accept(np.where(ok, lpp - lp, -np.inf), rng)
+        x[acc], lp[acc] = prop[acc], lpp[acc]
+    pos, vel = x[:, 0, 0], x[:, 0, 2]
+    assert abs(pos.std() - sx) < 0.05 * sx and abs(vel.std() - sv) < 0.05 * sv
+    assert abs(np.corrcoef(pos, vel)[0, 1] - rho) < 0.03
+    moved = np.mean(np.abs(vel - x0[:, 0, 2]) > 1e-9)
+    assert (moved > 0.9) if coupled else (moved == 0.0)
+
+
+def test_mcmc_target_keeps_the_predicted_populations_position_velocity_correlation():
+    """EPMCMC's MCMC target pi_t = L x (Gaussian fit to the predicted population): with
+    ``couple_velocity`` the fit keeps each part's position-velocity correlation per axis, and its log
+    density matches the bivariate normal's; the mutation's velocity gain is the regression slope."""
+    from scipy.stats import multivariate_normal
+
+    from common.multitarget import HistogramEvidence, MultiInit, make_filter, method_config
+
+    body = body_model(1)
+    img = np.full((100, 100, 3), 128, np.uint8)
+    init = MultiInit(parts=np.array([[[50.0, 50.0]]]), height=np.array([40.0]))
+    rng = np.random.default_rng(9)
+    zx, zv = rng.standard_normal((2, 4000, 2))
+    sx, sv, rho = 3.0, 20.0, -0.6
+    cloud = np.concatenate([50 + sx * zx, sv * (rho * zx + np.sqrt(1 - rho * rho) * zv)], axis=-1)[None, :, None]
+    pts = cloud[:, :5]
+    fits = {}
+    for coupled in (True, False):
+        cfg = method_config("epmcmc-elpda", n_parts=1, n_particles=4000)
+        cfg = cfg.model_copy(update={"evolution": cfg.evolution.model_copy(update={"couple_velocity": coupled})})
+        flt = make_filter(cfg, init, HistogramEvidence(img), 0)
+        flt.particles = cloud.copy()
+        flt._fit_prior()
+        fits[coupled] = flt
+    c = fits[True]
+    assert np.allclose(c._prior_rho[0, 0], rho, atol=0.05)
+    assert np.allclose(c._velocity_gain[0, 0], rho * sv / sx, rtol=0.1)
+    assert np.array_equal(fits[False]._prior_rho, np.zeros_like(c._prior_rho))
+    assert np.array_equal(fits[False]._velocity_gain, np.zeros_like(c._velocity_gain))
+    for coupled, flt in fits.items():
+        m, s, r = flt._prior_mean[0, 0], flt._prior_std[0, 0], flt._prior_rho[0, 0]
+        want = sum(multivariate_normal([m[a], m[2 + a]], [[s[a] ** 2, r[a] * s[a] * s[2 + a]],
+                                                           [r[a] * s[a] * s[2 + a], s[2 + a] ** 2]]).logpdf(pts[0, :, 0][:, [a, 2 + a]])
+                   for a in range(2))
+        got = flt._log_prior(pts, np.array([0]))[0]
+        assert np.allclose(got - got[0], want - want[0], atol=1e-9)  # up to the normalising constant

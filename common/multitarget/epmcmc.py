@@ -48,10 +48,33 @@ class EPMCMCFilter(MultiTargetFilter):
                                           ev.mutation_prob_velocity, ev.mutation_sigma, ev.mutation_sigma * h, rng,
                                           project=True)  # fmt: skip
 
+    def _fit_prior(self) -> None:
+        """Moments of the predicted populations: mean (T, P, 4), std (T, P, 4) floored at
+        ``prior_floor``, and the correlation (T, P, 2) of each part's position with its velocity
+        along each axis (0 unless ``couple_velocity``; capped at 0.95 in size)."""
+        ev = self.config.evolution
+        w = self.weights()
+        m = np.einsum("tn,tnpk->tpk", w, self.particles)
+        d = self.particles - m[:, None]
+        var = np.einsum("tn,tnpk->tpk", w, d * d)
+        std = np.sqrt(np.maximum(var, ev.prior_floor**2))
+        rho = np.zeros(m.shape[:-1] + (2,))
+        if ev.couple_velocity:
+            cov = np.einsum("tn,tnpk->tpk", w, d[..., :2] * d[..., 2:])
+            rho = np.clip(cov / (std[..., :2] * std[..., 2:]), -0.95, 0.95)
+        self._prior_mean, self._prior_std, self._prior_rho = m, std, rho
+        # regression of velocity on position: E[v | x] moves by rho s_v / s_x per px
+        self._velocity_gain = rho * std[..., 2:] / std[..., :2]
+
     def _log_prior(self, x: np.ndarray, model: np.ndarray) -> np.ndarray:
-        """(K, N) log N(x; m_t, diag s_t^2) of configurations (K, N, P, 4) under populations ``model``."""
+        """(K, N) log of the Gaussian fit to the predicted populations ``model`` at configurations
+        (K, N, P, 4): independent parts and axes, each axis a bivariate (position, velocity) normal
+        with correlation rho."""
         z = (x - self._prior_mean[model][:, None]) / self._prior_std[model][:, None]
-        return -0.5 * np.sum(z * z, axis=(-1, -2))
+        rho = self._prior_rho[model][:, None]
+        zx, zv = z[..., :2], z[..., 2:]
+        q = (zx * zx - 2 * rho * zx * zv + zv * zv) / (1 - rho * rho)
+        return -0.5 * np.sum(q, axis=(-1, -2))
 
     def _log_target(self, x: np.ndarray, model: np.ndarray, evidence: PartEvidence, terms: AssociationTerms) -> np.ndarray:
         return self.log_likelihood(x[..., :2], model, evidence, terms) + self._log_prior(x, model)
@@ -59,10 +82,7 @@ class EPMCMCFilter(MultiTargetFilter):
     def step(self, frame_time: float, evidence: PartEvidence) -> MultiTrackState:
         if self.advance(frame_time):
             self._genetic_proposal()
-        w = self.weights()
-        self._prior_mean = np.einsum("tn,tnpk->tpk", w, self.particles)
-        var = np.einsum("tn,tnpk->tpk", w, (self.particles - self._prior_mean[:, None]) ** 2)
-        self._prior_std = np.sqrt(np.maximum(var, self.config.evolution.prior_floor**2))
+        self._fit_prior()
         meas, terms, ll, w, n_eff, moved = self.weigh(evidence)
         acceptance: dict = {}
         if moved.any():
@@ -94,7 +114,8 @@ class EPMCMCFilter(MultiTargetFilter):
             for i, t in enumerate(pops):
                 h = self.targets.height[t]
                 prop[i], ok[i] = mutate(x[i], self.body, h, ev.mutation_prob_position, ev.mutation_prob_velocity,
-                                        ev.mutation_sigma, ev.mutation_sigma * h, rng, project=False)  # fmt: skip
+                                        ev.mutation_sigma, ev.mutation_sigma * h, rng, project=False,
+                                        velocity_gain=self._velocity_gain[t])  # fmt: skip
             lp_prop = self._log_target(prop, pops, evidence, terms)
             acc = mh_accept(np.where(ok, lp_prop - lp, -np.inf), rng)
             x[acc], lp[acc] = prop[acc], lp_prop[acc]

@@ -55,12 +55,14 @@ class Measurements:
     """(T, Q, 2, 2) covariance of the predicted located part over the particles (the prediction's share of S)."""
 
 
-def units(n_parts: int, level: str) -> tuple[np.ndarray, np.ndarray]:
+def units(n_parts: int, level: str, core: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Association units: (Q, P) bool membership and (Q,) located part of each unit.
 
-    ``structure``: one unit, all parts, located by the root; ``part``: one unit per part."""
+    ``structure``: one unit located by the root, matched on the parts in ``core`` ((P,) bool; None:
+    all parts); ``part``: one unit per part."""
     if level == "structure":
-        return np.ones((1, n_parts), bool), np.zeros(1, np.intp)
+        members = np.ones((1, n_parts), bool) if core is None else np.asarray(core, bool)[None].copy()
+        return members, np.zeros(1, np.intp)
     return np.eye(n_parts, dtype=bool), np.arange(n_parts)
 
 
@@ -75,15 +77,17 @@ def _grid(half: float, stride: int, reach: tuple[float, float] | None = None) ->
 
 
 def measure(parts: np.ndarray, part_cov: np.ndarray, r_cov: np.ndarray, box_size: np.ndarray,
-            references: np.ndarray, evidence: PartEvidence, cfg: GateConfig) -> Measurements:
+            references: np.ndarray, evidence: PartEvidence, cfg: GateConfig,
+            core: np.ndarray | None = None) -> Measurements:
     """Gate every target and unit and find the measurements.
 
     ``parts`` (T, P, 2) predicted part centres, ``part_cov`` (T, P, 2, 2) their covariance over the
     particles, ``r_cov`` (T, Q, 2, 2) the gates' R, ``box_size`` (T, P, 2) part boxes, ``references``
-    (T, P, B) reference histograms.
+    (T, P, B) reference histograms, ``core`` (P,) bool or None: the parts a structure-level match
+    shifts (see :func:`units`).
     """
     t_n, p_n = parts.shape[:2]
-    members, loc = units(p_n, cfg.level)
+    members, loc = units(p_n, cfg.level, core)
     q_n = len(loc)
     gamma = gate_gamma(cfg.p_gate)
     if cfg.adaptive:

@@ -57,12 +57,17 @@ def crossover(a: np.ndarray, b: np.ndarray, body: BodyModel, prob: float,
 
 
 def mutate(particles: np.ndarray, body: BodyModel, height: float, p_position: float, p_velocity: float,
-           sigma: float, sigma_velocity: float, rng: np.random.Generator, project: bool) -> tuple[np.ndarray, np.ndarray]:
+           sigma: float, sigma_velocity: float, rng: np.random.Generator, project: bool,
+           velocity_gain: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mutants of (K, P, 4) particles and the (K,) bool of those that satisfy the structure.
 
     Each of the 4P relative components mutates independently: positions with probability
     ``p_position`` by N(0, (sigma H)^2), velocities with ``p_velocity`` by N(0, sigma_velocity^2).
     ``project``: clip offending offsets back into the structure (then every mutant is valid).
+    ``velocity_gain`` (P, 2): each part's velocity also moves by gain * (its absolute position step),
+    per axis -- the regression of velocity on position of the population, so that a move towards
+    the evidence carries the velocity that would have brought the part there. Without projection
+    the step is a linear map of a symmetric draw, so the proposal stays symmetric (plain MH ratio).
     Draw order: (K, P, 4) uniforms, (K, P, 4) normals.
     """
     rel = relative_state(particles, body)
@@ -74,6 +79,8 @@ def mutate(particles: np.ndarray, body: BodyModel, height: float, p_position: fl
     if project:
         rel[..., :2] = project_to_structure(rel[..., :2], body, height)
     out = absolute_state(rel, body)
+    if velocity_gain is not None:
+        out[..., 2:] += velocity_gain * (out[..., :2] - particles[..., :2])
     return out, body.satisfies(out[..., :2], height)
 
 

@@ -100,7 +100,8 @@ class MultiTargetFilter:
         cfg = self.config
         a = cfg.association_model
         mean, cov = self.moments()
-        meas = measure(mean, cov, self.r_cov, self.targets.box_size, self.targets.references, evidence, cfg.gate)
+        meas = measure(mean, cov, self.r_cov, self.targets.box_size, self.targets.references, evidence, cfg.gate,
+                       self.match_parts)  # fmt: skip
         p_detect = self.detection_probability(mean)
         if cfg.association == "jpda":
             return meas, self._jpda_terms(meas, p_detect)
@@ -109,6 +110,12 @@ class MultiTargetFilter:
         beta = association_probabilities(lg, meas.valid, meas.volume, p_detect[:, None], cfg.gate.p_gate,
                                          a.clutter_density, attr)  # fmt: skip
         return meas, self._terms(meas.z, meas.valid, beta, meas.volume, meas.centre, cfg.association == "pda")
+
+    @property
+    def match_parts(self) -> np.ndarray | None:
+        """(P,) the parts a structure-level measurement is matched on (``GateConfig.core_deviation``)."""
+        dev = self.config.gate.core_deviation
+        return None if dev is None else self.body.max_dev <= dev
 
     def detection_probability(self, parts: np.ndarray) -> np.ndarray:
         """(T,) P_D of every target predicted at ``parts`` (T, P, 2): scaled by its visible share when
