@@ -173,7 +173,6 @@ def test_mcmc_target_keeps_the_predicted_populations_position_velocity_correlati
 
     from common.multitarget import HistogramEvidence, MultiInit, make_filter, method_config
 
-    body = body_model(1)
     img = np.full((100, 100, 3), 128, np.uint8)
     init = MultiInit(parts=np.array([[[50.0, 50.0]]]), height=np.array([40.0]))
     rng = np.random.default_rng(9)

@@ -207,6 +207,12 @@ class MultiTargetConfig(_Frozen):
         "its parts): the first frame gives positions only, so the filter must learn how fast and which way "
         "each person walks (0: every particle starts at rest).",
     )
+    reference_min_visible: float | None = Field(
+        0.25, ge=0, le=1,
+        description="Reference histograms are taken from the first frame's pixels of each part's box that the "
+        "targets in front do not cover (:mod:`.references`); a part with less than this share in view keeps its "
+        "whole box. None: whole boxes (a person who starts behind another takes the occluder's colours).",
+    )
     resampling: Literal["systematic", "stratified", "multinomial", "residual"] = Field(
         "residual", description="Resampling scheme (paper Algorithm 1 (a1): residual)."
     )

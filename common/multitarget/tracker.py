@@ -20,6 +20,7 @@ from .gating import Measurements, gate_gamma, measure, units, update_measurement
 from .likelihood import AssociationTerms, TargetModels, log_likelihood
 from .motion import predict, project_to_structure
 from .occlusion import detection_probability
+from .references import reference_histograms
 from .state import InitError, MultiInit, MultiTrackState
 
 RNG_STREAMS = ("init", "motion", "genetic", "resample", "mcmc")
@@ -41,7 +42,8 @@ class MultiTargetFilter:
     def __init__(self, config: MultiTargetConfig | None, init: MultiInit, first_evidence: PartEvidence,
                  seed: int | np.random.SeedSequence = 0) -> None:
         """``init``: initial part centres and heights; the reference histograms of every part are taken
-        from ``first_evidence`` (the first frame) at those centres."""
+        from ``first_evidence`` (the first frame) at those centres, from the pixels of each part's box
+        that no target in front covers (:mod:`.references`)."""
         self.config = cfg = config if config is not None else MultiTargetConfig()
         self.body = body = body_model(cfg.n_parts)
         parts = np.asarray(init.parts, float)
@@ -50,7 +52,10 @@ class MultiTargetFilter:
         self.rngs = _rngs(seed)
         height = np.asarray(init.height, float)
         size = body.box[None] * height[:, None, None]
-        refs = first_evidence.histograms(part_boxes(parts, size).reshape(-1, 4)).reshape(len(parts), body.n_parts, -1)
+        if cfg.reference_min_visible is None:
+            refs = first_evidence.histograms(part_boxes(parts, size).reshape(-1, 4)).reshape(len(parts), body.n_parts, -1)
+        else:
+            refs, _ = reference_histograms(first_evidence, parts, size, cfg.reference_min_visible)
         self.targets = TargetModels(body, height, refs)
         self._rest_pose = body.to_absolute(body.offset * height[:, None, None])  # (T, P, 2), root at 0
         t_n, n = len(parts), cfg.n_particles
