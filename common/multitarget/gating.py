@@ -3,9 +3,11 @@
 Association units (``GateConfig.level``): ``structure`` associates the whole pictorial structure
 (paper section 3.2: "with respect to the whole graph representing the target"): a measurement is a
 candidate position z of the root (torso) where the target's predicted configuration, shifted so that
-its root is at z, matches the target's colour histograms; ``part`` gates and associates every part
-on its own. A measurement's attribute is the match, the mean Bhattacharyya coefficient rho over the
-unit's parts. Candidates are the local maxima (3x3) of rho over a grid of shifts around the
+its root is at z, matches the target's colour histograms -- on its core, the parts held rigidly to the
+root (torso and head, ``GateConfig.core_deviation``): the limbs swing by more than their boxes, and
+shifting the predicted limbs along pulls the match off the torso; ``part`` gates and associates every
+part on its own. A measurement's attribute is the match, the mean Bhattacharyya coefficient rho over
+the unit's matched parts. Candidates are the local maxima (3x3) of rho over a grid of shifts around the
 prediction, with rho >= min_similarity, inside the gate; at most ``max_measurements`` of them (the
 highest). All targets' and units' grids go to the :class:`~.appearance.PartEvidence` in one batched
 call.
