@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", type=int, default=10, help="scene seeds 0..N-1 of the main comparison (default 10)")
     p.add_argument("--people", type=int, default=3, help="people in the main comparison's scenes, 1-5 (default 3)")
     p.add_argument("--frames", type=int, default=80, help="frames per scene (default 80)")
-    p.add_argument("--particles", type=int, help="particles per target (default: the config's 200)")
+    p.add_argument("--particles", type=int, help="particles per target (default: the config's 500, the paper's)")
     p.add_argument("--parts", type=int, default=10, choices=[1, 2, 6, 10], help="body-model parts (default 10)")
     p.add_argument("--gate", type=float, default=15.0, help="validation gate size, px (default 15, the paper's)")
     p.add_argument("--level", default="structure", choices=["structure", "part"],

@@ -10,10 +10,13 @@ One population of N particles per target. Each frame:
    resampling, then ``mcmc_iterations`` population-MCMC sweeps (Algorithm 2): a mutation MH move for
    every particle, then either a crossover MH move for random pairs within every population or, with
    probability ``exchange_prob``, an exchange MH move (eq. 8) between the particles of two randomly
-   chosen populations. The MCMC target of population t is
-   pi_t(x) ∝ L_t(z_k | x) N(x; m_t, diag s_t^2), with (m_t, s_t) the moments of the population's
-   predicted particles (the transition prior, moment-matched); the moves leave pi_t invariant, so the
-   moved particles carry equal weights (Algorithm 1 (a3): the recomputed weights are uniform).
+   chosen populations. The MCMC target of population t is pi_t(x) ∝ L_t(z_k | x) G_t(x), with G_t
+   the Gaussian fit to the population's predicted particles (the transition prior, moment-matched):
+   parts and axes independent, but each part's position and velocity along an axis correlated as in
+   the population (``couple_velocity``), and a mutation moves a part's velocity with its position by
+   the population's regression slope -- otherwise every resample-move would discard what the
+   population knows about speed. The moves leave pi_t invariant, so the moved particles carry equal
+   weights (Algorithm 1 (a3): the recomputed weights are uniform).
 
 Estimates are the weighted means after the resample-move step.
 """
