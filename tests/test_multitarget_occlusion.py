@@ -123,3 +123,58 @@ def test_depth_order_comes_from_the_root_not_the_noisy_limbs():
     assert pd[near] == a.p_detect and pd[far] < 0.2 * a.p_detect
     raw = detection_probability(a.p_detect, behind, flt.targets.box_size, a.occlusion_floor)  # judged on the limbs
     assert raw[far] == a.p_detect  # the limb boxes would have put the far person in front
+
+
+def test_occluder_boxes_and_covered_share_by_hand():
+    from common.multitarget.occlusion import covered_share, occluder_boxes
+
+    parts = np.array([[[10.0, 20.0]], [[14.0, 24.0]], [[100.0, 20.0]]])  # 1 stands in front of 0 (feet lower)
+    size = np.full((3, 1, 2), [10.0, 20.0])
+    occ = occluder_boxes(parts, size)
+    boxes = bounding_boxes(parts, size)
+    assert np.array_equal(occ[0, 1], boxes[1]) and not occ[0, [0, 2]].any()  # only 1 is in front of 0
+    assert not occ[1].any()  # nobody is in front of the nearest
+    assert np.array_equal(occ[2, 1], boxes[1])  # in front by depth, even where it covers nothing
+    part = np.array([[5.0, 10.0, 15.0, 30.0], [105.0, 10.0, 115.0, 30.0]])
+    # target 0's box x 5-15, y 10-30 under target 1's x 9-19, y 14-34: 6 x 16 of 10 x 20
+    assert covered_share(part, occ[0][None]) == pytest.approx([0.48, 0.0])
+    assert covered_share(part[:1], np.array([[[0.0, 0.0, 20.0, 40.0], [0.0, 0.0, 20.0, 40.0]]]))[0] == 1.0  # capped
+
+
+def test_a_hidden_part_counts_as_hidden_similarity_not_as_the_occluders_pixels():
+    from common.multitarget.appearance import part_boxes
+    from common.multitarget.likelihood import AssociationTerms, TargetModels, log_likelihood
+    from common.multitarget.config import LikelihoodConfig
+    from common.multitarget.occlusion import occluder_boxes
+
+    body = body_model(1)
+    img = np.full((120, 160, 3), 128, np.uint8)
+    img[30:70, 20:40] = (220, 20, 20)  # target 0 (red), standing clear
+    img[40:80, 90:110] = (20, 20, 220)  # target 1 (blue), nearer (feet at y 80)
+    ev = HistogramEvidence(img)
+    size = np.full((2, 1, 2), [20.0, 40.0])
+    height = size[:, 0, 1] / body.box[0, 1]
+    home = np.array([[[30.0, 50.0]], [[100.0, 60.0]]])
+    refs = ev.histograms(part_boxes(home, body.box[None] * height[:, None, None]).reshape(-1, 4))[:, None]
+    targets = TargetModels(body, height, refs)
+    pred = np.array([[[95.0, 55.0]], [[100.0, 60.0]]])  # target 0 predicted just behind target 1
+    occ = occluder_boxes(pred, targets.box_size)  # target 1's box covers all of target 0's there
+    terms = AssociationTerms(z=np.zeros((2, 1, 1, 2)), valid=np.zeros((2, 1, 1), bool), beta=np.ones((2, 1, 2)) / 2,
+                             volume=np.ones((2, 1)), r_cov=np.broadcast_to(np.eye(2), (2, 1, 2, 2)), p_gate=0.95,
+                             located=np.zeros(1, np.intp), centre=np.zeros((2, 1, 2)), occluders=occ)
+    pos = np.array([[[[100.0, 60.0]], [[30.0, 50.0]], [[60.0, 100.0]]]])  # behind 1; on its own pixels; on the floor
+    cfg = LikelihoodConfig(w_association=0.0, w_structure=0.0, hidden_similarity=0.8)
+    ll = log_likelihood(pos, np.array([0]), targets, ev, terms, cfg)[0]
+    lam, w = cfg.colour_lambda, cfg.w_appearance
+    assert ll[0] == pytest.approx(-w * lam * (1 - 0.8))  # fully hidden: the occluder's blue does not count
+    assert ll[1] == pytest.approx(0.0, abs=1e-5)  # visible on its own pixels: rho = 1
+    off = log_likelihood(pos, np.array([0]), targets, ev, terms, cfg.model_copy(update={"hidden_similarity": None}))[0]
+    rho_blue = ev.similarity(part_boxes(pos[0, :1, 0], targets.box_size[0]), refs[0], np.zeros(1, np.intp))[0]
+    assert rho_blue < 0.6  # the occluder's blue (and a little floor) against target 0's red
+    assert off[0] == pytest.approx(-w * lam * (1 - max(rho_blue, cfg.colour_floor)))  # negative control: its pixels count
+    assert off[0] < ll[0] - 0.5
+    assert ll[1] == off[1] and ll[2] == off[2] < -1.0  # uncovered boxes (own pixels, the floor): unchanged
+    # the nearest target is hidden by nobody: its pixels always count
+    on1 = log_likelihood(pos, np.array([1]), targets, ev, terms, cfg)[0]
+    off1 = log_likelihood(pos, np.array([1]), targets, ev, terms, cfg.model_copy(update={"hidden_similarity": None}))[0]
+    assert np.array_equal(on1, off1)

@@ -21,6 +21,7 @@ from .appearance import PartEvidence, part_boxes
 from .association import expected_log_likelihood, pda_log_likelihood
 from .body import BodyModel
 from .config import LikelihoodConfig
+from .occlusion import covered_share
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,7 @@ class AssociationTerms:
     located: np.ndarray  # (Q,) the part whose position each unit's measurements measure
     centre: np.ndarray  # (T, Q, 2) gate centres z^
     combined: bool = False  # True: plain PDA's combined-measurement likelihood instead of eq. 13
+    occluders: np.ndarray | None = None  # (T, T, 4) boxes of the targets in front of each (occlusion.occluder_boxes)
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,6 +70,9 @@ def log_likelihood(pos: np.ndarray, model: np.ndarray, targets: TargetModels, ev
         rho = evidence.similarity(part_boxes(pos, size).reshape(-1, 4),
                                   targets.references.reshape(-1, targets.references.shape[-1]), ref.ravel())
         rho = np.maximum(rho.reshape(k_n, n_n, p_n), cfg.colour_floor)
+        if cfg.hidden_similarity is not None and assoc is not None and assoc.occluders is not None:
+            covered = covered_share(part_boxes(pos, size), assoc.occluders[model][:, None, None])  # (K, N, P)
+            rho = (1.0 - covered) * rho + covered * cfg.hidden_similarity
         total += cfg.w_appearance * np.sum(-cfg.colour_lambda * (1.0 - rho), axis=-1)
     if cfg.w_association > 0 and assoc is not None:
         if assoc.combined:

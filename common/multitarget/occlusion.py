@@ -46,3 +46,21 @@ def covered_fraction(boxes: np.ndarray) -> np.ndarray:
 def detection_probability(p_detect: float, parts: np.ndarray, box_size: np.ndarray, floor: float) -> np.ndarray:
     """(T,) P_D of every target: ``p_detect`` times its visible share (at least ``floor``)."""
     return p_detect * np.maximum(1.0 - covered_fraction(bounding_boxes(parts, box_size)), floor)
+
+
+def occluder_boxes(parts: np.ndarray, box_size: np.ndarray) -> np.ndarray:
+    """(T, T, 4): [t, u] the bounding box of target u if u stands in front of t (feet lower), else an
+    empty box (so that it covers nothing); ``parts`` and ``box_size`` (T, P, 2)."""
+    boxes = bounding_boxes(parts, box_size)
+    front = boxes[None, :, 3] > boxes[:, None, 3]
+    return np.where(front[..., None], boxes[None], 0.0)
+
+
+def covered_share(boxes: np.ndarray, occluders: np.ndarray) -> np.ndarray:
+    """(...,) share of each box (..., 4) covered by ``occluders`` (..., K, 4) (broadcasting against
+    the boxes' leading axes), summed over the occluders and capped at 1."""
+    b, o = boxes[..., None, :], occluders
+    w = np.maximum(np.minimum(b[..., 2], o[..., 2]) - np.maximum(b[..., 0], o[..., 0]), 0.0)
+    h = np.maximum(np.minimum(b[..., 3], o[..., 3]) - np.maximum(b[..., 1], o[..., 1]), 0.0)
+    area = np.maximum((boxes[..., 2] - boxes[..., 0]) * (boxes[..., 3] - boxes[..., 1]), 1e-12)
+    return np.minimum(np.sum(w * h, axis=-1) / area, 1.0)

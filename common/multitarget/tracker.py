@@ -19,7 +19,7 @@ from .config import MultiTargetConfig
 from .gating import Measurements, gate_gamma, measure, units, update_measurement_cov
 from .likelihood import AssociationTerms, TargetModels, log_likelihood
 from .motion import predict, project_to_structure
-from .occlusion import detection_probability
+from .occlusion import detection_probability, occluder_boxes
 from .references import reference_histograms
 from .state import InitError, MultiInit, MultiTrackState
 
@@ -108,6 +108,7 @@ class MultiTargetFilter:
         meas = measure(mean, cov, self.r_cov, self.targets.box_size, self.targets.references, evidence, cfg.gate,
                        self.match_parts)  # fmt: skip
         p_detect = self.detection_probability(mean)
+        self._occluders = occluder_boxes(self._rest_pose + mean[:, :1], self.targets.box_size)
         if cfg.association == "jpda":
             return meas, self._jpda_terms(meas, p_detect)
         lg = log_gauss2(meas.z - meas.centre[:, :, None], meas.s_cov[:, :, None])
@@ -140,7 +141,7 @@ class MultiTargetFilter:
             r = np.broadcast_to(self.config.association_model.measurement_sigma**2 * np.eye(2), self.r_cov.shape).copy()
         return AssociationTerms(z, valid, beta, volume, r,
                                 self.config.gate.p_gate, units(self.body.n_parts, self.config.gate.level)[1],
-                                centre, combined)  # fmt: skip
+                                centre, combined, self._occluders)  # fmt: skip
 
     def _jpda_terms(self, meas: Measurements, p_detect: np.ndarray) -> AssociationTerms:
         """JPDA: per unit, every target's measurements pooled into one set shared by all targets."""
