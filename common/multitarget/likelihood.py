@@ -7,6 +7,10 @@ histograms q_p, height H and this frame's association terms:
                + w_da   sum_units log EL_u(x)      (expected likelihood, eq. 13; plain PDA: combined measurement)
                - w_geo  sum_{(p, q) edges} |x_p - x_q - mu_p H|^2 / (2 (sigma H)^2)   (pairwise structure)
 
+A part whose box the targets in front of its target cover (their boxes this frame, ``AssociationTerms.
+occluders``) shows the occluder's pixels, not its own: the covered share of its box counts as
+``hidden_similarity`` rather than as the pixels' rho (``LikelihoodConfig.hidden_similarity``).
+
 Any configuration can be scored under any target's model (needed by the exchange move), in one
 batched evidence call for all of them.
 """

@@ -35,12 +35,7 @@ def covered_fraction(boxes: np.ndarray) -> np.ndarray:
     """(T,) share of each box (T, 4) covered by the boxes in front of it (larger y1 = nearer), capped at 1.
 
     Ties in y1 hide neither box."""
-    x0, y0, x1, y1 = boxes.T
-    w = np.maximum(np.minimum(x1[:, None], x1[None]) - np.maximum(x0[:, None], x0[None]), 0.0)
-    h = np.maximum(np.minimum(y1[:, None], y1[None]) - np.maximum(y0[:, None], y0[None]), 0.0)
-    front = y1[None, :] > y1[:, None]  # [t, u]: u stands in front of t
-    area = np.maximum((x1 - x0) * (y1 - y0), 1e-12)
-    return np.minimum(np.sum(np.where(front, w * h, 0.0), axis=1) / area, 1.0)
+    return covered_share(boxes, _in_front(boxes))
 
 
 def detection_probability(p_detect: float, parts: np.ndarray, box_size: np.ndarray, floor: float) -> np.ndarray:
@@ -48,12 +43,16 @@ def detection_probability(p_detect: float, parts: np.ndarray, box_size: np.ndarr
     return p_detect * np.maximum(1.0 - covered_fraction(bounding_boxes(parts, box_size)), floor)
 
 
+def _in_front(boxes: np.ndarray) -> np.ndarray:
+    """(T, T, 4): [t, u] box u if it stands in front of box t (larger y1), else an empty box."""
+    front = boxes[None, :, 3] > boxes[:, None, 3]
+    return np.where(front[..., None], boxes[None], 0.0)
+
+
 def occluder_boxes(parts: np.ndarray, box_size: np.ndarray) -> np.ndarray:
     """(T, T, 4): [t, u] the bounding box of target u if u stands in front of t (feet lower), else an
     empty box (so that it covers nothing); ``parts`` and ``box_size`` (T, P, 2)."""
-    boxes = bounding_boxes(parts, box_size)
-    front = boxes[None, :, 3] > boxes[:, None, 3]
-    return np.where(front[..., None], boxes[None], 0.0)
+    return _in_front(bounding_boxes(parts, box_size))
 
 
 def covered_share(boxes: np.ndarray, occluders: np.ndarray) -> np.ndarray:
