@@ -86,3 +86,23 @@ def test_monte_carlo_runs_average_independent_filter_seeds():
     assert three["identities_kept"] == all(three["identities_kept_runs"]) and len(three["identities_kept_runs"]) == 3
     with pytest.raises(ValueError, match="runs"):
         evaluate_scene(cfg, 4, configs, runs=0)
+
+
+def test_identity_check_tells_swaps_from_people_standing_one_behind_the_other():
+    from common.multitarget.metrics import identities_kept
+
+    f = 12
+    truth = np.zeros((f, 3, 2))
+    truth[:, 0] = [100.0, 200.0]
+    truth[:, 1] = [102.0, 201.0]  # one behind the other, 2.2 px apart
+    truth[:, 2] = [200.0, 200.0]
+    est = truth.copy()
+    est[:, 0] += [2.0, 1.0]  # each within 2.3 px of its own person, but nearer the other one:
+    est[:, 1] -= [2.0, 1.0]  # the final frame's optimal assignment swaps 0 and 1
+    assert identities_kept(est, truth, max_error=17.5).all()
+    swapped = est.copy()
+    swapped[:, [0, 2]] = est[:, [2, 0]]  # negative control: a real swap, 100 px
+    assert identities_kept(swapped, truth, max_error=17.5).tolist() == [False, True, False]
+    far = est.copy()
+    far[-3:, 1] += [30.0, 0.0]  # off its own person near the end
+    assert identities_kept(far, truth, max_error=17.5).tolist() == [True, False, True]
