@@ -71,12 +71,16 @@ def log_likelihood(pos: np.ndarray, model: np.ndarray, targets: TargetModels, ev
     if cfg.w_appearance > 0:
         size = np.broadcast_to(targets.box_size[model][:, None], pos.shape)
         ref = np.broadcast_to((model[:, None, None] * p_n + np.arange(p_n)), pos.shape[:3])
-        rho = evidence.similarity(part_boxes(pos, size).reshape(-1, 4),
-                                  targets.references.reshape(-1, targets.references.shape[-1]), ref.ravel())
+        boxes = part_boxes(pos, size)
+        rho = evidence.similarity(boxes.reshape(-1, 4), targets.references.reshape(-1, targets.references.shape[-1]),
+                                  ref.ravel())  # fmt: skip
         rho = np.maximum(rho.reshape(k_n, n_n, p_n), cfg.colour_floor)
         if cfg.hidden_similarity is not None and assoc is not None and assoc.occluders is not None:
-            covered = covered_share(part_boxes(pos, size), assoc.occluders[model][:, None, None])  # (K, N, P)
-            rho = (1.0 - covered) * rho + covered * cfg.hidden_similarity
+            occ = assoc.occluders[model]  # (K, T, 4)
+            occ = occ[:, occ.any(axis=(0, 2))]  # only the targets in front of some scored model
+            if occ.shape[1]:
+                covered = covered_share(boxes, occ[:, None, None])  # (K, N, P)
+                rho = (1.0 - covered) * rho + covered * cfg.hidden_similarity
         total += cfg.w_appearance * np.sum(-cfg.colour_lambda * (1.0 - rho), axis=-1)
     if cfg.w_association > 0 and assoc is not None:
         if assoc.combined:
