@@ -41,7 +41,9 @@ def test_segments_are_mapped_in_once_and_other_files_left_alone(write):
         p = SegmentPopulator(write=write, calls=3)
         assert p.populate() >= PAGES  # this segment (and any other Zenoh segment mapped here)
         assert p.populate() == 0  # each mapping once
-        assert _faults_reading(zm) == 0  # its pages are in: reading them faults no more
+        # its pages are in: reading all 256 faults no more (ru_minflt counts the whole process, and
+        # the interpreter itself can take a fault or two for a fresh heap page: seen once in a full run)
+        assert _faults_reading(zm) <= 2
         assert _faults_reading(om) >= PAGES // 2  # negative control: a file that is not Zenoh's
         p.populate()
         assert p.calls_left == 0 and p.populate() == 0  # a bounded number of calls, then nothing
