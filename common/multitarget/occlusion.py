@@ -10,8 +10,8 @@ over as the target disappears, and the filter coasts on its motion model until i
     P_D,t = P_D * max(1 - covered_t, floor)
 
 ``covered_t``: the share of target t's predicted bounding box (the union box of its predicted part
-boxes) covered by the bounding boxes of the targets in front of it (feet lower in the image),
-summed over those targets and capped at 1. The union of two occluders' boxes is over-counted only
+boxes) covered by the bounding boxes of the targets in front of it (feet lower in the image, or the
+running order of :mod:`.depth`, which also reads the pixels where two targets overlap), summed over those targets and capped at 1. The union of two occluders' boxes is over-counted only
 where they overlap each other, which the cap absorbs. The filters pass every body in its rest pose at
 its predicted root (:meth:`~.tracker.MultiTargetFilter.detection_probability`), so that the noisy
 limb estimates do not decide who stands in front.
@@ -31,28 +31,36 @@ def bounding_boxes(parts: np.ndarray, box_size: np.ndarray) -> np.ndarray:
     return np.concatenate([b[..., :2].min(axis=1), b[..., 2:].max(axis=1)], axis=-1)
 
 
-def covered_fraction(boxes: np.ndarray) -> np.ndarray:
-    """(T,) share of each box (T, 4) covered by the boxes in front of it (larger y1 = nearer), capped at 1.
+def covered_fraction(boxes: np.ndarray, front: np.ndarray | None = None) -> np.ndarray:
+    """(T,) share of each box (T, 4) covered by the boxes in front of it, capped at 1.
 
-    Ties in y1 hide neither box."""
-    return covered_share(boxes, _in_front(boxes))
-
-
-def detection_probability(p_detect: float, parts: np.ndarray, box_size: np.ndarray, floor: float) -> np.ndarray:
-    """(T,) P_D of every target: ``p_detect`` times its visible share (at least ``floor``)."""
-    return p_detect * np.maximum(1.0 - covered_fraction(bounding_boxes(parts, box_size)), floor)
+    ``front`` (T, T) bool, [t, u] = u stands in front of t (:class:`~.depth.DepthOrder`); None: the
+    box with the larger y1 (feet lower) is nearer, and ties hide neither box."""
+    return covered_share(boxes, _in_front(boxes, front))
 
 
-def _in_front(boxes: np.ndarray) -> np.ndarray:
-    """(T, T, 4): [t, u] box u if it stands in front of box t (larger y1), else an empty box."""
-    front = boxes[None, :, 3] > boxes[:, None, 3]
+def detection_probability(p_detect: float, parts: np.ndarray, box_size: np.ndarray, floor: float,
+                          front: np.ndarray | None = None) -> np.ndarray:
+    """(T,) P_D of every target: ``p_detect`` times its visible share (at least ``floor``); ``front`` as
+    in :func:`covered_fraction`."""
+    return p_detect * np.maximum(1.0 - covered_fraction(bounding_boxes(parts, box_size), front), floor)
+
+
+def feet_order(boxes: np.ndarray) -> np.ndarray:
+    """(T, T) bool, [t, u] = box u stands in front of box t: its lower edge y1 is lower in the image."""
+    return boxes[None, :, 3] > boxes[:, None, 3]
+
+
+def _in_front(boxes: np.ndarray, front: np.ndarray | None = None) -> np.ndarray:
+    """(T, T, 4): [t, u] box u if it stands in front of box t, else an empty box."""
+    front = feet_order(boxes) if front is None else np.asarray(front, bool)
     return np.where(front[..., None], boxes[None], 0.0)
 
 
-def occluder_boxes(parts: np.ndarray, box_size: np.ndarray) -> np.ndarray:
-    """(T, T, 4): [t, u] the bounding box of target u if u stands in front of t (feet lower), else an
-    empty box (so that it covers nothing); ``parts`` and ``box_size`` (T, P, 2)."""
-    return _in_front(bounding_boxes(parts, box_size))
+def occluder_boxes(parts: np.ndarray, box_size: np.ndarray, front: np.ndarray | None = None) -> np.ndarray:
+    """(T, T, 4): [t, u] the bounding box of target u if u stands in front of t, else an empty box (so
+    that it covers nothing); ``parts`` and ``box_size`` (T, P, 2), ``front`` as in :func:`covered_fraction`."""
+    return _in_front(bounding_boxes(parts, box_size), front)
 
 
 def covered_share(boxes: np.ndarray, occluders: np.ndarray) -> np.ndarray:

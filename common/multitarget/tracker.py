@@ -16,6 +16,7 @@ from .appearance import PartEvidence, part_boxes
 from .association import association_probabilities, attribute_ratio, jpda_probabilities, log_gauss2
 from .body import body_model
 from .config import MultiTargetConfig
+from .depth import DepthOrder
 from .gating import Measurements, gate_gamma, measure, units, update_measurement_cov
 from .likelihood import AssociationTerms, TargetModels, log_likelihood
 from .motion import predict, project_to_structure
@@ -58,6 +59,7 @@ class MultiTargetFilter:
             refs, _ = reference_histograms(first_evidence, parts, size, cfg.reference_min_visible)
         self.targets = TargetModels(body, height, refs)
         self._rest_pose = body.to_absolute(body.offset * height[:, None, None])  # (T, P, 2), root at 0
+        self.depth = DepthOrder(len(parts), cfg.depth)
         t_n, n = len(parts), cfg.n_particles
         pos = parts[:, None] + cfg.init_spread * self.rngs["init"].standard_normal((t_n, n, body.n_parts, 2))
         pos = body.to_absolute(project_to_structure(body.to_relative(pos), body, height[:, None]))
@@ -107,8 +109,11 @@ class MultiTargetFilter:
         mean, cov = self.moments()
         meas = measure(mean, cov, self.r_cov, self.targets.box_size, self.targets.references, evidence, cfg.gate,
                        self.match_parts)  # fmt: skip
-        p_detect = self.detection_probability(mean)
-        self._occluders = occluder_boxes(self._rest_pose + mean[:, :1], self.targets.box_size)
+        rest = self._rest_pose + mean[:, :1]
+        front = self.depth.update(rest, self.targets.box_size, self.targets.references,
+                                 self.body.max_dev <= cfg.depth.core_deviation, evidence)  # fmt: skip
+        p_detect = self.detection_probability(mean, front)
+        self._occluders = occluder_boxes(rest, self.targets.box_size, front)
         if cfg.association == "jpda":
             return meas, self._jpda_terms(meas, p_detect)
         lg = log_gauss2(meas.z - meas.centre[:, :, None], meas.s_cov[:, :, None])
@@ -123,15 +128,20 @@ class MultiTargetFilter:
         dev = self.config.gate.core_deviation
         return None if dev is None else self.body.max_dev <= dev
 
-    def detection_probability(self, parts: np.ndarray) -> np.ndarray:
+    def detection_probability(self, parts: np.ndarray, front: np.ndarray | None = None) -> np.ndarray:
         """(T,) P_D of every target predicted at ``parts`` (T, P, 2): scaled by its visible share when
-        ``occlusion_floor`` is set (:mod:`.occlusion`). Who hides whom is judged on each body standing in
-        its rest pose at the predicted root: the limbs' estimates are the noisiest (several px), and a
-        lower leg a few px off would swap the depth order of two people on nearby lanes."""
+        ``occlusion_floor`` is set (:mod:`.occlusion`). Who hides whom is ``front`` ((T, T) bool, [t, u] = u
+        in front of t), by default the running depth order (:mod:`.depth`) without new evidence. Both are
+        judged on each body standing in its rest pose at the predicted root: the limbs' estimates are the
+        noisiest (several px), and a lower leg a few px off would swap the depth order of two people on
+        nearby lanes."""
         a = self.config.association_model
         if a.occlusion_floor is None:
             return np.full(self.n_targets, a.p_detect)
-        return detection_probability(a.p_detect, self._rest_pose + parts[:, :1], self.targets.box_size, a.occlusion_floor)
+        rest = self._rest_pose + parts[:, :1]
+        if front is None:
+            front = self.depth.front(rest, self.targets.box_size)
+        return detection_probability(a.p_detect, rest, self.targets.box_size, a.occlusion_floor, front)
 
     def _terms(self, z, valid, beta, volume, centre, combined: bool = False) -> AssociationTerms:
         g = self.config.gate
