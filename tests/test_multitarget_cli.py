@@ -18,17 +18,18 @@ def test_eval_multi_json_has_the_three_methods(tmp_path, capsys):
     for m in ("epmcmc-elpda", "epmcmc-pda", "jpda-pf"):
         assert report["methods"][m]["rmse"] > 0 and report["methods"][m]["ms_per_frame"] > 0
         assert 0 <= report["methods"][m]["idf1"] <= 1
-    assert 0.0 <= report["elpda_beats_pda"] <= 1.0
+    assert 0.0 <= report["elpda_beats_pda"] <= 1.0 and report["init"] == "truth"
     assert (tmp_path / "eval-multi.json").exists() and (tmp_path / "error_per_frame.png").exists()
 
 
 def test_eval_multi_monte_carlo_runs(tmp_path, capsys):
     rc = main(["eval-multi", "--json", "--seeds", "1", "--people", "2", "--frames", "10", "--particles", "20",
-               "--parts", "1", "--runs", "2", "--sweeps", "none", "--workers", "1", "--out-dir", str(tmp_path)])
+               "--parts", "1", "--runs", "2", "--init", "boxes", "--sweeps", "none", "--workers", "1",
+               "--out-dir", str(tmp_path)])
     assert rc == 0
     report = json.loads(capsys.readouterr().out)
     assert report["runs"] == 2 and 0.0 <= report["elpda_beats_pda_runs"] <= 1.0
-    assert report["level"] == "structure"
+    assert report["level"] == "structure" and report["init"] == "boxes"
     for m in ("epmcmc-elpda", "epmcmc-pda", "jpda-pf"):
         seed0 = report["per_seed"][0][m]
         assert len(seed0["rmse_runs"]) == 2 and seed0["rmse"] == pytest.approx(np.mean(seed0["rmse_runs"]), abs=2e-3)

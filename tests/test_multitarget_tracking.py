@@ -88,6 +88,28 @@ def test_monte_carlo_runs_average_independent_filter_seeds():
         evaluate_scene(cfg, 4, configs, runs=0)
 
 
+def test_evaluation_can_start_from_the_boxes_alone():
+    """``init="boxes"`` starts the filters where MultiInit.from_boxes puts the bodies, not on the truth."""
+    from common.multitarget import MultiInit, body_model
+    from common.scene.people import PeopleScene
+
+    cfg = PeopleSceneConfig(n_people=2, n_frames=10)
+    configs = {"epmcmc-pda": method_config("epmcmc-pda", n_particles=60, init_spread=0.0)}
+    truth = evaluate_scene(cfg, 1, configs)
+    boxes = evaluate_scene(cfg, 1, configs, init="boxes")
+    assert truth["init"] == "truth" and boxes["init"] == "boxes"
+    first = PeopleScene(cfg, seed=1).frame(0)
+    body = body_model(10)
+    start = MultiInit.from_boxes(first.truth.boxes, body, (first.image.shape[1], first.image.shape[0])).parts
+    off = np.sqrt(np.sum((start - body.from_ten(first.truth.parts)) ** 2, axis=-1).mean(axis=1))  # (T,) RMS px
+    assert np.all(off > 3.0)  # the rest pose in a box is several px off the walking body
+    err0 = np.array(boxes["methods"]["epmcmc-pda"]["error_per_frame"][0])
+    assert err0 == pytest.approx(off, abs=0.5)  # the first estimate sits on the boxes' bodies...
+    assert np.all(np.array(truth["methods"]["epmcmc-pda"]["error_per_frame"][0]) < 0.5)  # ...not on the truth
+    with pytest.raises(ValueError, match="init"):
+        evaluate_scene(cfg, 1, configs, init="detector")
+
+
 def test_identity_check_tells_swaps_from_people_standing_one_behind_the_other():
     from common.multitarget.metrics import identities_kept
 

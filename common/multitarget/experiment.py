@@ -4,7 +4,9 @@
 method sees the same frames and the same :class:`~.appearance.HistogramEvidence` (built once per
 frame, timed separately as ``evidence_ms_per_frame``); ``ms_per_frame`` is the tracker's own
 ``step`` time. Filters are initialised from the first frame's ground truth (the paper initialises
-with a pictorial-structure detector, section 4.1) and seeded with the scene seed.
+with a pictorial-structure detector, section 4.1) or, with ``init="boxes"``, from the people's
+bounding boxes alone, as ``polartrack run`` / ``track`` start (a standing body placed in each box,
+:meth:`~.state.MultiInit.from_boxes`), and seeded with the scene seed.
 
 Monte Carlo runs (``runs``, the paper's "Monte Carlo cycles", section 4.1: its per-clip RMSE is a mean
 over 100 of them, Figs. 5-6): every method tracks the same frames ``runs`` times with independent
@@ -35,19 +37,24 @@ def filter_seed(seed: int, run: int) -> int | np.random.SeedSequence:
 
 
 def evaluate_scene(scene_config: PeopleSceneConfig, seed: int, configs: dict[str, MultiTargetConfig],
-                   runs: int = 1) -> dict:
+                   runs: int = 1, init: str = "truth") -> dict:
     """Track scene ``seed`` with every config ``runs`` times (Monte Carlo runs with independent filter
     seeds, on the same frames and evidence); per method: RMSE per target, timings, MOT scores and
-    tracks, means over the runs, with the per-run RMSE and identity checks."""
+    tracks, means over the runs, with the per-run RMSE and identity checks. ``init``: ``truth`` (the
+    first frame's part positions) or ``boxes`` (the people's boxes only)."""
     if runs < 1:
         raise ValueError("runs must be at least 1")
+    if init not in ("truth", "boxes"):
+        raise ValueError(f"init must be 'truth' or 'boxes', got {init!r}")
     scene = PeopleScene(scene_config, seed=seed)
     first = scene.frame(0)
     ev = HistogramEvidence(first.image, next(iter(configs.values())).histogram)
     filters = {}
     for name, cfg in configs.items():
-        init = MultiInit.from_truth(first.truth.parts, first.truth.boxes, body_model(cfg.n_parts))
-        filters[name] = [make_filter(cfg, init, ev, filter_seed(seed, r)) for r in range(runs)]
+        body = body_model(cfg.n_parts)
+        start = (MultiInit.from_truth(first.truth.parts, first.truth.boxes, body) if init == "truth"
+                 else MultiInit.from_boxes(first.truth.boxes, body, ev.image_size))  # fmt: skip
+        filters[name] = [make_filter(cfg, start, ev, filter_seed(seed, r)) for r in range(runs)]
     est = {k: [[] for _ in range(runs)] for k in configs}
     elapsed = {k: 0.0 for k in configs}
     ev_time = 0.0
@@ -68,7 +75,7 @@ def evaluate_scene(scene_config: PeopleSceneConfig, seed: int, configs: dict[str
     truth = np.array(truth)  # (F, T, 10, 2)
     heights = np.array([w.height for w in scene.walkers])
     last_cross = max((c[2] for c in scene.crossings), default=0)
-    out = {"seed": seed, "runs": runs, "crossings": scene.crossings, "n_frames": len(scene),
+    out = {"seed": seed, "runs": runs, "init": init, "crossings": scene.crossings, "n_frames": len(scene),
            "evidence_ms_per_frame": 1e3 * ev_time / max(len(scene) - 1, 1), "methods": {}}
     for name, cfg in configs.items():
         body = filters[name][0].body
