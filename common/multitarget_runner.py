@@ -21,6 +21,7 @@ import numpy as np
 from common.msgs import MultiEstimate, pack, unpack
 from common.multitarget import (HistogramEvidence, MultiInit, MultiTargetConfig, MultiTrackState,
                                 PartEvidence, body_model, make_filter, method_config)
+from common.multitarget.placement import place_in_boxes
 
 @dataclass(frozen=True)
 class MultiRun:
@@ -49,12 +50,16 @@ class MultiRun:
 
 
 class MultiTracker:
-    """The run's filter, started on the first frame: ``step(time, evidence) -> MultiTrackState``."""
+    """The run's filter, started on the first frame: ``step(time, evidence) -> MultiTrackState``. Each body
+    is placed in its box and shifted to where its core stands out from the surroundings
+    (:mod:`common.multitarget.placement`; ``placement_shifts``, px)."""
 
     def __init__(self, run: MultiRun, image_size: tuple[int, int], first_evidence: PartEvidence):
         self.run = run
         self.body = body_model(run.config.n_parts)
-        init = MultiInit.from_boxes(np.array(run.boxes, float), self.body, image_size)
+        boxes = np.array(run.boxes, float)
+        init = MultiInit.from_boxes(boxes, self.body, image_size)
+        init, self.placement_shifts = place_in_boxes(init, boxes, self.body, first_evidence, run.config.placement)
         self.filter = make_filter(run.config, init, first_evidence, run.seed)
 
     def step(self, frame_time: float, evidence: PartEvidence) -> MultiTrackState:

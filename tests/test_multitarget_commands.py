@@ -44,6 +44,7 @@ def test_track_multi_filter_equals_the_filter_run_by_hand(tmp_path):
     """``track --filter`` (and its alias ``track-multi``) give the estimates of the filter stepped by
     hand on the scene's frames with in-process evidence."""
     from common.multitarget import HistogramEvidence, MultiInit, body_model, make_filter, method_config
+    from common.multitarget.placement import place_in_boxes
 
     a, b = tmp_path / "track.csv", tmp_path / "track_multi.csv"
     common = ["people:3", "--filter", "epmcmc-pda", "--parts", "2", "--particles", "12", "--frames", "10",
@@ -59,7 +60,10 @@ def test_track_multi_filter_equals_the_filter_run_by_hand(tmp_path):
     for frame in source:
         ev = HistogramEvidence(frame.image, cfg.histogram)
         if flt is None:
-            flt = make_filter(cfg, MultiInit.from_boxes(source.person_boxes(), body, frame.size), ev, 5)
+            boxes = source.person_boxes()
+            start, shifts = place_in_boxes(MultiInit.from_boxes(boxes, body, frame.size), boxes, body, ev, cfg.placement)
+            assert np.any(shifts != 0)  # the placement moved someone: the comparison covers it
+            flt = make_filter(cfg, start, ev, 5)
         state = flt.step(frame.time, ev)
         want += [[str(frame.index), str(t), name, f"{x:.6f}", f"{y:.6f}"]
                  for t, parts in enumerate(state.parts) for name, (x, y) in zip(body.names, parts)]

@@ -89,8 +89,9 @@ def test_monte_carlo_runs_average_independent_filter_seeds():
 
 
 def test_evaluation_can_start_from_the_boxes_alone():
-    """``init="boxes"`` starts the filters where MultiInit.from_boxes puts the bodies, not on the truth."""
+    """``init="boxes"`` starts the filters where the bodies are placed in the boxes, not on the truth."""
     from common.multitarget import MultiInit, body_model
+    from common.multitarget.placement import place_in_boxes
     from common.scene.people import PeopleScene
 
     cfg = PeopleSceneConfig(n_people=2, n_frames=10)
@@ -100,8 +101,10 @@ def test_evaluation_can_start_from_the_boxes_alone():
     assert truth["init"] == "truth" and boxes["init"] == "boxes"
     first = PeopleScene(cfg, seed=1).frame(0)
     body = body_model(10)
-    start = MultiInit.from_boxes(first.truth.boxes, body, (first.image.shape[1], first.image.shape[0])).parts
-    off = np.sqrt(np.sum((start - body.from_ten(first.truth.parts)) ** 2, axis=-1).mean(axis=1))  # (T,) RMS px
+    ev = HistogramEvidence(first.image)
+    start, _ = place_in_boxes(MultiInit.from_boxes(first.truth.boxes, body, ev.image_size), first.truth.boxes, body,
+                              ev, configs["epmcmc-pda"].placement)  # fmt: skip
+    off = np.sqrt(np.sum((start.parts - body.from_ten(first.truth.parts)) ** 2, axis=-1).mean(axis=1))  # (T,) RMS px
     assert np.all(off > 3.0)  # the rest pose in a box is several px off the walking body
     err0 = np.array(boxes["methods"]["epmcmc-pda"]["error_per_frame"][0])
     assert err0 == pytest.approx(off, abs=0.5)  # the first estimate sits on the boxes' bodies...

@@ -218,6 +218,19 @@ class DepthConfig(_Frozen):
     )
 
 
+class PlacementConfig(_Frozen):
+    """Placing a body in a person box: the shift search (:mod:`.placement`); set on seeds 100-119."""
+
+    search_x: float = Field(0.08, ge=0, le=0.5, description="Largest sideways shift searched, units of H (0 with search_y 0: no search).")
+    search_y: float = Field(0.04, ge=0, le=0.5, description="Largest shift up or down searched, units of H.")
+    ring: float = Field(0.25, gt=0, le=2, description="Width of the ring around the box whose colours are the surroundings, units of H.")
+    core_deviation: float = Field(
+        0.06, ge=0,
+        description="The parts scored: those whose offset may deviate at most this from the rest pose (units of H): "
+        "the torso and head; the limbs of a walking person are not where the rest pose puts them.",
+    )
+
+
 class MultiTargetConfig(_Frozen):
     """One tracker: filter, association and all component settings."""
 
@@ -256,6 +269,7 @@ class MultiTargetConfig(_Frozen):
     association_model: AssociationConfig = Field(default_factory=AssociationConfig)
     evolution: EvolutionConfig = Field(default_factory=EvolutionConfig)
     depth: DepthConfig = Field(default_factory=DepthConfig)
+    placement: PlacementConfig = Field(default_factory=PlacementConfig)
 
 
 METHODS = ("epmcmc-elpda", "epmcmc-pda", "jpda-pf")
