@@ -19,9 +19,9 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from common.msgs import MultiEstimate, pack, unpack
-from common.multitarget import (HistogramEvidence, MultiInit, MultiTargetConfig, MultiTrackState,
+from common.multitarget import (HistogramEvidence, MultiTargetConfig, MultiTrackState,
                                 PartEvidence, body_model, make_filter, method_config)
-from common.multitarget.placement import place_in_boxes
+from common.multitarget.placement import start_from_boxes
 
 @dataclass(frozen=True)
 class MultiRun:
@@ -50,16 +50,15 @@ class MultiRun:
 
 
 class MultiTracker:
-    """The run's filter, started on the first frame: ``step(time, evidence) -> MultiTrackState``. Each body
-    is placed in its box and shifted to where its core stands out from the surroundings
+    """The run's filter, started on the first frame's evidence (its ``image_size`` bounds the boxes):
+    ``step(time, evidence) -> MultiTrackState``. Each body is placed in its box and shifted to where its core stands out from the surroundings
     (:mod:`common.multitarget.placement`; ``placement_shifts``, px)."""
 
-    def __init__(self, run: MultiRun, image_size: tuple[int, int], first_evidence: PartEvidence):
+    def __init__(self, run: MultiRun, first_evidence: PartEvidence):
         self.run = run
         self.body = body_model(run.config.n_parts)
-        boxes = np.array(run.boxes, float)
-        init = MultiInit.from_boxes(boxes, self.body, image_size)
-        init, self.placement_shifts = place_in_boxes(init, boxes, self.body, first_evidence, run.config.placement)
+        init, self.placement_shifts = start_from_boxes(np.array(run.boxes, float), self.body, first_evidence,
+                                                       run.config.placement)  # fmt: skip
         self.filter = make_filter(run.config, init, first_evidence, run.seed)
 
     def step(self, frame_time: float, evidence: PartEvidence) -> MultiTrackState:
@@ -90,8 +89,7 @@ def track_frames(frames: Iterable, run: MultiRun) -> Iterator[tuple[object, Mult
     for frame in frames:
         ev = HistogramEvidence(frame.image, run.config.histogram)
         if tracker is None:
-            h, w = frame.image.shape[:2]
-            tracker = MultiTracker(run, (w, h), ev)
+            tracker = MultiTracker(run, ev)
         yield frame, tracker.step(frame.time, ev)
 
 
@@ -194,7 +192,7 @@ def offline_retrack_multi(rec, run: MultiRun) -> dict:
         ev = QueryPartEvidence(ask, "offline", info.index, (info.width, info.height), run.config.histogram)
         try:
             if tracker is None:
-                tracker = MultiTracker(run, (info.width, info.height), ev)
+                tracker = MultiTracker(run, ev)
             new.append(multi_estimate_msg(info.index, tracker.step(info.time_s, ev), run))
         except EvidenceUnavailable:
             stats["unanswered"] += 1

@@ -66,7 +66,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
             t0 = time.perf_counter()
             try:
                 if tracker is None:
-                    tracker = MultiTracker(run, size, ev)
+                    tracker = MultiTracker(run, ev)
                 state = tracker.step(info.time_s, ev)
                 msg = multi_estimate_msg(int(info.index), state, run, info.capture_ns,
                                          1e3 * (time.perf_counter() - t0))

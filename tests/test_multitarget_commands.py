@@ -113,7 +113,7 @@ def test_query_evidence_answered_by_the_detector_core_is_bit_identical():
         core.add_frame(f.index, f.image, f.time)
         ev = QueryPartEvidence(ask, "t", f.index, f.size, run.config.histogram)
         if tracker is None:
-            tracker = MultiTracker(run, f.size, ev)
+            tracker = MultiTracker(run, ev)
         remote.append(multi_estimate_msg(f.index, tracker.step(f.time, ev), run))
     local = [multi_estimate_msg(f.index, s, run) for f, s in track_frames(open_source("people:2", n_frames=10), run)]
     assert all(same_multi_estimate(a, b) for a, b in zip(remote, local)) and len(remote) == 10

@@ -5,8 +5,8 @@ method sees the same frames and the same :class:`~.appearance.HistogramEvidence`
 frame, timed separately as ``evidence_ms_per_frame``); ``ms_per_frame`` is the tracker's own
 ``step`` time. Filters are initialised from the first frame's ground truth (the paper initialises
 with a pictorial-structure detector, section 4.1) or, with ``init="boxes"``, from the people's
-bounding boxes alone, as ``polartrack run`` / ``track`` start (a standing body placed in each box,
-:meth:`~.state.MultiInit.from_boxes`, shifted to where its core stands out, :mod:`.placement`), and seeded with the scene seed.
+bounding boxes alone, as ``polartrack run`` / ``track`` start (a standing body in each box, shifted
+to where its core stands out: :mod:`.placement`), and seeded with the scene seed.
 
 Monte Carlo runs (``runs``, the paper's "Monte Carlo cycles", section 4.1: its per-clip RMSE is a mean
 over 100 of them, Figs. 5-6): every method tracks the same frames ``runs`` times with independent
@@ -27,7 +27,7 @@ from .appearance import HistogramEvidence
 from .body import body_model
 from .config import MultiTargetConfig
 from .metrics import combined_rmse, identities_kept, mot_metrics, ospa
-from .placement import place_in_boxes
+from .placement import start_from_boxes
 from .state import MultiInit
 
 
@@ -56,8 +56,7 @@ def evaluate_scene(scene_config: PeopleSceneConfig, seed: int, configs: dict[str
         if init == "truth":
             start = MultiInit.from_truth(first.truth.parts, first.truth.boxes, body)
         else:
-            start, _ = place_in_boxes(MultiInit.from_boxes(first.truth.boxes, body, ev.image_size), first.truth.boxes,
-                                      body, ev, cfg.placement)  # fmt: skip
+            start, _ = start_from_boxes(first.truth.boxes, body, ev, cfg.placement)
         filters[name] = [make_filter(cfg, start, ev, filter_seed(seed, r)) for r in range(runs)]
     est = {k: [[] for _ in range(runs)] for k in configs}
     elapsed = {k: 0.0 for k in configs}

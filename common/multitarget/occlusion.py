@@ -11,8 +11,9 @@ over as the target disappears, and the filter coasts on its motion model until i
 
 ``covered_t``: the share of target t's predicted bounding box (the union box of its predicted part
 boxes) covered by the bounding boxes of the targets in front of it (feet lower in the image, or the
-running order of :mod:`.depth`, which also reads the pixels where two targets overlap), summed over those targets and capped at 1. The union of two occluders' boxes is over-counted only
-where they overlap each other, which the cap absorbs. The filters pass every body in its rest pose at
+running order of :mod:`.depth`, which also reads the pixels where two targets overlap), summed over
+those targets and capped at 1. The union of two occluders' boxes is over-counted only where they
+overlap each other, which the cap absorbs. The filters pass every body in its rest pose at
 its predicted root (:meth:`~.tracker.MultiTargetFilter.detection_probability`), so that the noisy
 limb estimates do not decide who stands in front.
 """

@@ -79,3 +79,11 @@ def place_in_boxes(init: MultiInit, boxes_xywh: np.ndarray, body: BodyModel, evi
         shifts[t] = off[int(np.argmax(score))]
         parts[t] += shifts[t]
     return MultiInit(parts, height), shifts
+
+
+def start_from_boxes(boxes_xywh: np.ndarray, body: BodyModel, evidence: PartEvidence,
+                     cfg: PlacementConfig) -> tuple[MultiInit, np.ndarray]:
+    """Bodies placed in the person boxes (T, 4) x, y, w, h of the first frame ``evidence`` and shifted
+    (:func:`place_in_boxes`); the box checks of :meth:`~.state.MultiInit.from_boxes` apply."""
+    boxes = np.asarray(boxes_xywh, float)
+    return place_in_boxes(MultiInit.from_boxes(boxes, body, evidence.image_size), boxes, body, evidence, cfg)
