@@ -24,18 +24,21 @@ def test_eval_multi_json_has_the_three_methods(tmp_path, capsys):
 
 def test_eval_multi_monte_carlo_runs(tmp_path, capsys):
     rc = main(["eval-multi", "--json", "--seeds", "1", "--people", "2", "--frames", "10", "--particles", "20",
-               "--parts", "1", "--runs", "2", "--init", "boxes", "--sweeps", "none", "--workers", "1",
+               "--parts", "1", "--runs", "2", "--init", "boxes", "--first-seed", "3", "--sweeps", "none", "--workers", "1",
                "--out-dir", str(tmp_path)])
     assert rc == 0
     report = json.loads(capsys.readouterr().out)
     assert report["runs"] == 2 and 0.0 <= report["elpda_beats_pda_runs"] <= 1.0
     assert report["level"] == "structure" and report["init"] == "boxes"
+    assert report["first_seed"] == 3 and [r["seed"] for r in report["per_seed"]] == [3]
     for m in ("epmcmc-elpda", "epmcmc-pda", "jpda-pf"):
         seed0 = report["per_seed"][0][m]
         assert len(seed0["rmse_runs"]) == 2 and seed0["rmse"] == pytest.approx(np.mean(seed0["rmse_runs"]), abs=2e-3)
         assert 0.0 <= report["methods"][m]["identities_kept_runs"] <= 1.0
     assert main(["eval-multi", "--runs", "0", "--out-dir", str(tmp_path)]) == 2
     assert "--runs" in capsys.readouterr().err
+    assert main(["eval-multi", "--first-seed", "-1", "--out-dir", str(tmp_path)]) == 2
+    assert "--first-seed" in capsys.readouterr().err
 
 
 @pytest.fixture
