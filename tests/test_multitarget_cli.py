@@ -97,3 +97,16 @@ def test_eval_multi_part_level_association(tmp_path, capsys, monkeypatch):
                "--parts", "2", "--level", "part", "--sweeps", "none", "--workers", "1", "--out-dir", str(tmp_path)])
     assert rc == 0 and json.loads(capsys.readouterr().out)["level"] == "part"
     assert seen and all(c.gate.level == "part" for c in seen[0].values())  # every method, the same measurement model
+
+
+def test_eval_multi_table_names_the_seeds_and_the_start(capsys, monkeypatch):
+    from common.commands.eval_multi import _print_table
+
+    monkeypatch.setenv("COLUMNS", "200")
+    row = {"rmse": 4.0, "rmse_std": 0.1, "ms_per_frame": 10.0, "identities_kept": 1.0, "mota": 1.0, "idf1": 1.0,
+           "id_switches": 0, "ospa": 1.0}
+    _print_table({"epmcmc-elpda": row}, 0.5, 20, {}, [], 3, 0.4, "boxes", 20)
+    out = capsys.readouterr().out
+    assert "seeds 20-39 x 3 run(s)" in out and "started from boxes only" in out
+    _print_table({"epmcmc-elpda": row}, 0.5, 10, {}, [], 1, None)
+    assert "seeds 0-9 x 1 run(s), started from first-frame parts" in capsys.readouterr().out

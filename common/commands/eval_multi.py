@@ -161,14 +161,14 @@ def _plots(main: list[dict], sweeps: dict, out_dir: Path) -> list[str]:
 
 
 def _print_table(summary: dict, wins: float, n: int, sweeps: dict, plots: list[str], runs: int = 1,
-                 wins_runs: float | None = None, init: str = "truth") -> None:
+                 wins_runs: float | None = None, init: str = "truth", first_seed: int = 0) -> None:
     from rich.console import Console
     from rich.table import Table
 
     con = Console()
     start = "first-frame parts" if init == "truth" else "boxes only"
-    t = Table(title=f"Synthetic people scene, {n} seeds x {runs} run(s), started from {start} "
-              "(combined RMSE in px, all parts)")
+    t = Table(title=f"Synthetic people scene, seeds {first_seed}-{first_seed + n - 1} x {runs} run(s), started "
+              f"from {start} (combined RMSE in px, all parts)")
     for col in ("method", "RMSE", "± std", "ms/frame", "ids kept", "MOTA", "IDF1", "ID sw", "OSPA"):
         t.add_column(col, justify="right" if col != "method" else "left")
     for m, s in summary.items():
@@ -250,5 +250,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report))
     else:
-        _print_table(summary, wins, len(main), sweeps, plots, args.runs, wins_runs, args.init)
+        _print_table(summary, wins, len(main), sweeps, plots, args.runs, wins_runs, args.init, args.first_seed)
     return 0
