@@ -5,7 +5,7 @@ import pytest
 
 from common.multitarget import HistogramEvidence, MultiInit, body_model
 from common.multitarget.config import PlacementConfig
-from common.multitarget.placement import place_in_boxes, surround_boxes
+from common.multitarget.placement import place_in_boxes, surround_boxes, surround_histograms
 
 H = 60.0
 TORSO = np.array([80.0, 100.0])
@@ -56,3 +56,16 @@ def test_nothing_to_find_keeps_the_box_placement():
     init = MultiInit.from_boxes(box, body, ev.image_size)
     placed, shift = place_in_boxes(init, box, body, ev, PlacementConfig())
     assert not shift.any() and np.array_equal(placed.parts, init.parts)
+
+
+def test_the_surroundings_count_only_the_pixels_in_the_frame():
+    img = np.full((100, 100, 3), 128, np.uint8)
+    img[:, 0:2] = (20, 20, 220)  # the only blue: the 2 px of the left ring inside the frame
+    ev = HistogramEvidence(img)
+    box = np.array([[2.0, 30.0, 20.0, 40.0]])  # ring of 10 px: left x -8..2 (2 px in the frame), right 22..32
+    bg = surround_histograms(ev, box, np.array([10.0]))[0]
+    blue = ev.histograms(np.array([[0.0, 0.0, 2.0, 100.0]]))[0]
+    grey = ev.histograms(np.array([[50.0, 0.0, 60.0, 100.0]]))[0]
+    share = (2 * 60) / (2 * 60 + 10 * 60 + 2 * 20 * 10)  # left in frame, right, above and below
+    np.testing.assert_allclose(bg, share * blue + (1 - share) * grey, atol=1e-6)
+    assert share == pytest.approx(0.107, abs=1e-3)  # counting the whole left rectangle would give 0.375

@@ -41,6 +41,19 @@ def surround_boxes(boxes_xywh: np.ndarray, margin: np.ndarray) -> np.ndarray:
     ], axis=1)  # fmt: skip
 
 
+def surround_histograms(evidence: PartEvidence, boxes_xywh: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """(T, B) colour histogram of the ring of width ``margin`` (T,) around every box: its four rectangles
+    cut to the frame, weighted by the pixels each has in the frame."""
+    t_n = len(boxes_xywh)
+    w, h = evidence.image_size
+    ring = surround_boxes(boxes_xywh, margin)  # (T, 4, 4)
+    ring[..., 0::2] = np.clip(ring[..., 0::2], 0, w)
+    ring[..., 1::2] = np.clip(ring[..., 1::2], 0, h)
+    hist = evidence.histograms(ring.reshape(-1, 4)).reshape(t_n, 4, -1)
+    area = np.prod(np.maximum(ring[..., 2:] - ring[..., :2], 0.0), axis=-1)  # (T, 4) in-frame pixels
+    return np.einsum("tr,trb->tb", area, hist) / np.maximum(area.sum(axis=1, keepdims=True), 1e-12)
+
+
 def _offsets(rx: int, ry: int) -> np.ndarray:
     """(K, 2) integer shifts |dx| <= rx, |dy| <= ry, nearest first (stable in x, y order)."""
     gx, gy = np.meshgrid(np.arange(-rx, rx + 1, dtype=float), np.arange(-ry, ry + 1, dtype=float))
@@ -58,10 +71,7 @@ def place_in_boxes(init: MultiInit, boxes_xywh: np.ndarray, body: BodyModel, evi
     if cfg.search_x <= 0 and cfg.search_y <= 0:
         return init, shifts
     core = body.max_dev <= cfg.core_deviation
-    ring = surround_boxes(boxes_xywh, cfg.ring * height)  # (T, 4, 4)
-    ring_hist = evidence.histograms(ring.reshape(-1, 4)).reshape(t_n, 4, -1)
-    ring_area = np.prod(np.maximum(ring[..., 2:] - ring[..., :2], 0.0), axis=-1)  # (T, 4)
-    background = np.einsum("tr,trb->tb", ring_area, ring_hist) / np.maximum(ring_area.sum(axis=1, keepdims=True), 1e-12)
+    background = surround_histograms(evidence, boxes_xywh, cfg.ring * height)
     size = body.box[core][None] * height[:, None, None]  # (T, C, 2)
     area = np.prod(size, axis=-1)  # (T, C)
     offsets = [_offsets(int(round(cfg.search_x * h)), int(round(cfg.search_y * h))) for h in height]
