@@ -178,3 +178,59 @@ def test_a_hidden_part_counts_as_hidden_similarity_not_as_the_occluders_pixels()
     on1 = log_likelihood(pos, np.array([1]), targets, ev, terms, cfg)[0]
     off1 = log_likelihood(pos, np.array([1]), targets, ev, terms, cfg.model_copy(update={"hidden_similarity": None}))[0]
     assert np.array_equal(on1, off1)
+
+
+def test_visible_strip_by_hand():
+    from common.multitarget.occlusion import visible_strip
+
+    box = np.array([0.0, 0.0, 10.0, 20.0])
+    cases = [
+        ([[6.0, -5.0, 20.0, 30.0]], [0.0, 0.0, 6.0, 20.0]),  # covered on the right, full height
+        ([[-5.0, 15.0, 20.0, 30.0]], [0.0, 0.0, 10.0, 15.0]),  # covered below
+        ([[-5.0, -5.0, 2.0, 30.0], [8.0, -5.0, 20.0, 30.0]], [2.0, 0.0, 8.0, 20.0]),  # between two people
+        ([[7.0, 12.0, 20.0, 30.0]], [0.0, 0.0, 7.0, 20.0]),  # a corner: the larger strip (7 x 20 > 10 x 12)
+        ([[3.0, 8.0, 20.0, 30.0]], [0.0, 0.0, 10.0, 8.0]),  # ... (10 x 8 > 3 x 20)
+        ([[50.0, 0.0, 60.0, 20.0], [0.0, 0.0, 0.0, 0.0]], [0.0, 0.0, 10.0, 20.0]),  # apart, and an empty box
+    ]
+    for occ, want in cases:
+        assert visible_strip(box, np.array(occ)).tolist() == want, occ
+    whole = visible_strip(box, np.array([[-1.0, -1.0, 11.0, 21.0]]))
+    assert whole[0] == whole[2]  # covered whole: empty
+    batch = visible_strip(np.stack([box, box + 100.0]), np.array([[[6.0, -5.0, 20.0, 30.0]], [[0.0, 0.0, 0.0, 0.0]]]))
+    assert batch.tolist() == [[0.0, 0.0, 6.0, 20.0], (box + 100.0).tolist()]
+
+
+def test_a_half_hidden_part_is_scored_on_its_visible_pixels():
+    """Half behind a nearer person, a part on its own spot scores its visible half as its own colour: it beats
+    hiding fully behind the occluder, where scoring the whole box (the occluder's half in it) lost."""
+    from common.multitarget.appearance import part_boxes
+    from common.multitarget.config import LikelihoodConfig
+    from common.multitarget.likelihood import AssociationTerms, TargetModels, log_likelihood
+    from common.multitarget.occlusion import occluder_boxes
+
+    body = body_model(1)
+    height = np.array([40.0, 40.0]) / body.box[0, 1]  # boxes 27.7 x 40 px
+    size = body.box[None] * height[:, None, None]
+    half = 0.5 * size[0, 0, 0]
+    pred = np.array([[[30.0, 50.0]], [[30.0 + half, 51.0]]])  # target 1 (feet 1 px lower, in front) from x 30 on
+    box0, box1 = np.rint(part_boxes(pred[:, 0], size[:, 0])).astype(int)
+    img = np.full((120, 160, 3), 128, np.uint8)
+    img[box0[1]:box0[3], box0[0]:box0[2]] = (220, 20, 20)  # target 0, red
+    img[box1[1]:box1[3], box1[0]:box1[2]] = (20, 20, 220)  # target 1, blue, painted over target 0's right half
+    ev = HistogramEvidence(img)
+    refs = np.stack([ev.histograms(np.array([[box0[0], box0[1], 30, box0[3]]], float))[0],
+                     ev.histograms(box1[None].astype(float))[0]])[:, None]  # fmt: skip
+    targets = TargetModels(body, height, refs)
+    terms = AssociationTerms(z=np.zeros((2, 1, 1, 2)), valid=np.zeros((2, 1, 1), bool), beta=np.ones((2, 1, 2)) / 2,
+                             volume=np.ones((2, 1)), r_cov=np.broadcast_to(np.eye(2), (2, 1, 2, 2)), p_gate=0.95,
+                             located=np.zeros(1, np.intp), centre=np.zeros((2, 1, 2)),
+                             occluders=occluder_boxes(pred, targets.box_size))  # fmt: skip
+    pos = pred[None]  # target 0 on its own spot (its right half hidden); on target 1's (hidden whole)
+    cfg = LikelihoodConfig(w_association=0.0, w_structure=0.0, hidden_similarity=0.75, visible_pixels_only=True)
+    lam, w = cfg.colour_lambda, cfg.w_appearance
+    on = log_likelihood(pos, np.array([0]), targets, ev, terms, cfg)[0]
+    assert on[0] == pytest.approx(-w * lam * (1 - (0.5 * 1.0 + 0.5 * 0.75)), abs=1e-5)  # visible half: rho 1
+    assert on[1] == pytest.approx(-w * lam * (1 - 0.75))  # fully hidden
+    assert on[0] > on[1]
+    off = log_likelihood(pos, np.array([0]), targets, ev, terms, cfg.model_copy(update={"visible_pixels_only": False}))[0]
+    assert off[0] < off[1]  # negative control: the whole box's mixed colours made hiding the better bet

@@ -9,7 +9,8 @@ histograms q_p, height H and this frame's association terms:
 
 A part whose box the targets in front of its target cover (their boxes this frame, ``AssociationTerms.
 occluders``) shows the occluder's pixels, not its own: the covered share of its box counts as
-``hidden_similarity`` rather than as the pixels' rho (``LikelihoodConfig.hidden_similarity``).
+``hidden_similarity``, and rho is taken on the largest strip of the box that nobody covers
+(``LikelihoodConfig.hidden_similarity``, ``visible_pixels_only``).
 
 Any configuration can be scored under any target's model (needed by the exchange move), in one
 batched evidence call for all of them.
@@ -25,7 +26,7 @@ from .appearance import PartEvidence, part_boxes
 from .association import expected_log_likelihood, pda_log_likelihood
 from .body import BodyModel
 from .config import LikelihoodConfig
-from .occlusion import covered_share
+from .occlusion import covered_share, visible_strip
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,10 @@ class TargetModels:
         return self.body.box[None] * self.height[:, None, None]
 
 
+def _area(boxes: np.ndarray) -> np.ndarray:
+    return np.maximum(boxes[..., 2] - boxes[..., 0], 0.0) * np.maximum(boxes[..., 3] - boxes[..., 1], 0.0)
+
+
 def log_likelihood(pos: np.ndarray, model: np.ndarray, targets: TargetModels, evidence: PartEvidence,
                    assoc: AssociationTerms | None, cfg: LikelihoodConfig) -> np.ndarray:
     """(K, N) log L of configurations ``pos`` (K, N, P, 2) under the targets ``model`` (K,)."""
@@ -72,15 +77,21 @@ def log_likelihood(pos: np.ndarray, model: np.ndarray, targets: TargetModels, ev
         size = np.broadcast_to(targets.box_size[model][:, None], pos.shape)
         ref = np.broadcast_to((model[:, None, None] * p_n + np.arange(p_n)), pos.shape[:3])
         boxes = part_boxes(pos, size)
-        rho = evidence.similarity(boxes.reshape(-1, 4), targets.references.reshape(-1, targets.references.shape[-1]),
-                                  ref.ravel())  # fmt: skip
-        rho = np.maximum(rho.reshape(k_n, n_n, p_n), cfg.colour_floor)
+        scored, hidden = boxes, None
         if cfg.hidden_similarity is not None and assoc is not None and assoc.occluders is not None:
             occ = assoc.occluders[model]  # (K, T, 4)
             occ = occ[:, occ.any(axis=(0, 2))]  # only the targets in front of some scored model
             if occ.shape[1]:
-                covered = covered_share(boxes, occ[:, None, None])  # (K, N, P)
-                rho = (1.0 - covered) * rho + covered * cfg.hidden_similarity
+                if cfg.visible_pixels_only:
+                    scored = visible_strip(boxes, occ[:, None, None])
+                    hidden = 1.0 - _area(scored) / np.maximum(_area(boxes), 1e-12)  # (K, N, P)
+                else:
+                    hidden = covered_share(boxes, occ[:, None, None])
+        rho = evidence.similarity(scored.reshape(-1, 4), targets.references.reshape(-1, targets.references.shape[-1]),
+                                  ref.ravel())  # fmt: skip
+        rho = np.maximum(rho.reshape(k_n, n_n, p_n), cfg.colour_floor)
+        if hidden is not None:
+            rho = (1.0 - hidden) * rho + hidden * cfg.hidden_similarity
         total += cfg.w_appearance * np.sum(-cfg.colour_lambda * (1.0 - rho), axis=-1)
     if cfg.w_association > 0 and assoc is not None:
         if assoc.combined:

@@ -72,3 +72,26 @@ def covered_share(boxes: np.ndarray, occluders: np.ndarray) -> np.ndarray:
     h = np.maximum(np.minimum(b[..., 3], o[..., 3]) - np.maximum(b[..., 1], o[..., 1]), 0.0)
     area = np.maximum((boxes[..., 2] - boxes[..., 0]) * (boxes[..., 3] - boxes[..., 1]), 1e-12)
     return np.minimum(np.sum(w * h, axis=-1) / area, 1.0)
+
+
+def visible_strip(boxes: np.ndarray, occluders: np.ndarray) -> np.ndarray:
+    """(..., 4) the largest rectangle of each box (..., 4) that no occluder (..., K, 4) covers, found
+    occluder by occluder: of the box's strips left, right, above and below an occluder that overlaps it,
+    the largest is kept (exact for one occluder; people side by side leave a strip). A box covered
+    whole becomes empty (x0 = x1)."""
+    out = np.array(np.broadcast_to(boxes, np.broadcast_shapes(boxes.shape, occluders.shape[:-2] + (4,))), float)
+    for k in range(occluders.shape[-2]):
+        o = np.broadcast_to(occluders[..., k, :], out.shape)
+        x0, y0, x1, y1 = (out[..., i] for i in range(4))
+        hits = (np.minimum(x1, o[..., 2]) > np.maximum(x0, o[..., 0])) & (np.minimum(y1, o[..., 3]) > np.maximum(y0, o[..., 1]))
+        if not hits.any():
+            continue
+        cands = np.stack([
+            np.stack([x0, y0, np.minimum(x1, o[..., 0]), y1], -1), np.stack([np.maximum(x0, o[..., 2]), y0, x1, y1], -1),
+            np.stack([x0, y0, x1, np.minimum(y1, o[..., 1])], -1), np.stack([x0, np.maximum(y0, o[..., 3]), x1, y1], -1),
+        ], axis=-2)  # (..., 4 strips, 4)  # fmt: skip
+        area = np.maximum(cands[..., 2] - cands[..., 0], 0.0) * np.maximum(cands[..., 3] - cands[..., 1], 0.0)
+        best = np.take_along_axis(cands, np.argmax(area, axis=-1)[..., None, None], axis=-2)[..., 0, :]
+        best = np.where((area.max(axis=-1) > 0)[..., None], best, np.stack([x0, y0, x0, y0], -1))
+        out = np.where(hits[..., None], best, out)
+    return out
