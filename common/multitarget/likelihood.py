@@ -9,8 +9,8 @@ histograms q_p, height H and this frame's association terms:
 
 A part whose box the targets in front of its target cover (their boxes this frame, ``AssociationTerms.
 occluders``) shows the occluder's pixels, not its own: the covered share of its box counts as
-``hidden_similarity``, and rho is taken on the largest strip of the box that nobody covers
-(``LikelihoodConfig.hidden_similarity``, ``visible_pixels_only``).
+``hidden_similarity`` rather than as the pixels' rho (``LikelihoodConfig.hidden_similarity``); with
+``visible_pixels_only`` rho is taken on the largest strip of the box that nobody covers.
 
 Any configuration can be scored under any target's model (needed by the exchange move), in one
 batched evidence call for all of them.
