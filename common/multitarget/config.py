@@ -77,7 +77,7 @@ class LikelihoodConfig(_Frozen):
         "occluder's pixels in it, which makes a half-hidden part on its own spot score below one hidden whole "
         "behind the occluder. Off by default: on seeds 100-119 (two runs) ELPDA went 4.75 -> 4.74 px and beat "
         "PDA on 15 of 20 scenes against 12, but on seeds 0-39 (three runs) the scenes where ELPDA beats PDA "
-        "only moved (0.80 -> 0.65 on 0-19, 0.70 -> 0.85 on 20-39), ELPDA kept identities on 39 of 40 against "
+        "only moved (0.85 -> 0.65 on 0-19, 0.70 -> 0.85 on 20-39), ELPDA kept identities on 39 of 40 against "
         "38, every method's RMSE rose on 20-39 (ELPDA 4.65 -> 4.86 px), and a step took 20-25 % longer.",
     )
     w_appearance: float = Field(
