@@ -120,6 +120,17 @@ class HistogramEvidence:
         return bhattacharyya(p, np.asarray(references, np.float32)[ref_index]).astype(float)
 
 
+def pixel_boxes(boxes: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
+    """(..., 4) boxes x0, y0, x1, y1 on the whole-pixel grid :class:`HistogramEvidence` counts: rounded,
+    clipped to the ``(width, height)`` frame, never inverted."""
+    w, h = image_size
+    b = np.rint(np.asarray(boxes, float))
+    b[..., 0::2] = np.clip(b[..., 0::2], 0, w)
+    b[..., 1::2] = np.clip(b[..., 1::2], 0, h)
+    b[..., 2:] = np.maximum(b[..., 2:], b[..., :2])
+    return b
+
+
 def part_boxes(centres: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """(..., 2) centres and (..., 2) box sizes -> (..., 4) boxes x0, y0, x1, y1."""
     half = 0.5 * sizes

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .appearance import PartEvidence, bhattacharyya, part_boxes
+from .appearance import PartEvidence, bhattacharyya, part_boxes, pixel_boxes
 from .body import BodyModel
 from .config import PlacementConfig
 from .state import MultiInit
@@ -43,14 +43,11 @@ def surround_boxes(boxes_xywh: np.ndarray, margin: np.ndarray) -> np.ndarray:
 
 def surround_histograms(evidence: PartEvidence, boxes_xywh: np.ndarray, margin: np.ndarray) -> np.ndarray:
     """(T, B) colour histogram of the ring of width ``margin`` (T,) around every box: its four rectangles
-    cut to the frame, weighted by the pixels each has in the frame."""
+    on the frame's pixel grid (:func:`~.appearance.pixel_boxes`), weighted by the pixels each counts."""
     t_n = len(boxes_xywh)
-    w, h = evidence.image_size
-    ring = surround_boxes(boxes_xywh, margin)  # (T, 4, 4)
-    ring[..., 0::2] = np.clip(ring[..., 0::2], 0, w)
-    ring[..., 1::2] = np.clip(ring[..., 1::2], 0, h)
+    ring = pixel_boxes(surround_boxes(boxes_xywh, margin), evidence.image_size)  # (T, 4, 4), in the frame
     hist = evidence.histograms(ring.reshape(-1, 4)).reshape(t_n, 4, -1)
-    area = np.prod(np.maximum(ring[..., 2:] - ring[..., :2], 0.0), axis=-1)  # (T, 4) in-frame pixels
+    area = np.prod(ring[..., 2:] - ring[..., :2], axis=-1)  # (T, 4) pixels counted
     return np.einsum("tr,trb->tb", area, hist) / np.maximum(area.sum(axis=1, keepdims=True), 1e-12)
 
 

@@ -20,16 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .appearance import PartEvidence, part_boxes
-
-
-def _pixel_boxes(boxes: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
-    w, h = image_size
-    b = np.rint(np.asarray(boxes, float))
-    b[..., 0::2] = np.clip(b[..., 0::2], 0, w)
-    b[..., 1::2] = np.clip(b[..., 1::2], 0, h)
-    b[..., 2:] = np.maximum(b[..., 2:], b[..., :2])
-    return b
+from .appearance import PartEvidence, part_boxes, pixel_boxes
 
 
 def visible_cells(box: np.ndarray, occluders: np.ndarray) -> np.ndarray:
@@ -54,7 +45,7 @@ def reference_histograms(evidence: PartEvidence, parts: np.ndarray, box_size: np
     """Reference histograms (T, P, B) of every target's parts ``parts`` (T, P, 2) with boxes
     ``box_size`` (T, P, 2), and the visible share (T, P) of every part's box."""
     t_n, p_n = parts.shape[:2]
-    boxes = _pixel_boxes(part_boxes(parts, box_size), evidence.image_size)  # (T, P, 4)
+    boxes = pixel_boxes(part_boxes(parts, box_size), evidence.image_size)  # (T, P, 4)
     feet = boxes[..., 3].max(axis=1)  # (T,)
     area = np.prod(boxes[..., 2:] - boxes[..., :2], axis=-1)
     cells, owner, visible = [], [], np.ones((t_n, p_n))
