@@ -101,3 +101,36 @@ def test_filter_judges_who_is_hidden_by_the_pixels():
     flt.associate(ev)
     after = flt.detection_probability(init.parts)
     assert after[1] == cfg.association_model.p_detect and after[0] < after[1]  # pixels: target 0 hidden
+
+
+def test_no_depth_query_when_nothing_uses_the_order():
+    from common.multitarget import MultiInit, make_filter, method_config
+
+    class Counting:
+        """Evidence that counts the HISTOGRAMS questions (the depth order's; the gates ask SIMILARITY)."""
+
+        def __init__(self, ev):
+            self.ev, self.image_size, self.calls = ev, ev.image_size, 0
+
+        def histograms(self, boxes):
+            self.calls += 1
+            return self.ev.histograms(boxes)
+
+        def similarity(self, boxes, references, ref_index):
+            return self.ev.similarity(boxes, references, ref_index)
+
+    ev, parts, refs = _scene(front_colour_first=True)
+    body = body_model(1)
+    init = MultiInit(parts=parts, height=SIZE[:, 0, 1] / body.box[0, 1])
+    on = method_config("epmcmc-elpda", n_parts=1, n_particles=20)
+    off = on.model_copy(update={
+        "likelihood": on.likelihood.model_copy(update={"hidden_similarity": None}),
+        "association_model": on.association_model.model_copy(update={"occlusion_floor": None}),
+    })  # fmt: skip
+    counts = []
+    for cfg in (on, off):
+        flt = make_filter(cfg, init, ev, 0)
+        counting = Counting(ev)
+        flt.associate(counting)
+        counts.append(counting.calls)
+    assert counts == [1, 0]  # the overlap cuts are asked for only where P_D or the hidden share use them

@@ -110,8 +110,11 @@ class MultiTargetFilter:
         meas = measure(mean, cov, self.r_cov, self.targets.box_size, self.targets.references, evidence, cfg.gate,
                        self.match_parts)  # fmt: skip
         rest = self._rest_pose + mean[:, :1]
-        front = self.depth.update(rest, self.targets.box_size, self.targets.references,
-                                 self.body.max_dev <= cfg.depth.core_deviation, evidence)  # fmt: skip
+        if a.occlusion_floor is None and cfg.likelihood.hidden_similarity is None:
+            front = self.depth.front(rest, self.targets.box_size)  # nothing reads it: no query for it
+        else:
+            front = self.depth.update(rest, self.targets.box_size, self.targets.references,
+                                      self.body.max_dev <= cfg.depth.core_deviation, evidence)  # fmt: skip
         p_detect = self.detection_probability(mean, front)
         self._occluders = occluder_boxes(rest, self.targets.box_size, front)
         if cfg.association == "jpda":
