@@ -31,6 +31,10 @@ def test_eval_multi_monte_carlo_runs(tmp_path, capsys):
     assert report["runs"] == 2 and 0.0 <= report["elpda_beats_pda_runs"] <= 1.0
     assert report["level"] == "structure" and report["init"] == "boxes"
     assert report["first_seed"] == 3 and [r["seed"] for r in report["per_seed"]] == [3]
+    paired = report["per_seed"][0]["elpda_minus_pda"]
+    e, p = (report["per_seed"][0][m]["rmse_runs"] for m in ("epmcmc-elpda", "epmcmc-pda"))
+    assert paired["difference"] == pytest.approx(np.mean(np.subtract(e, p)), abs=2e-3)
+    assert report["elpda_vs_pda"] == {v: float(paired["verdict"] == v) for v in ("lower", "higher", "undecided")}
     for m in ("epmcmc-elpda", "epmcmc-pda", "jpda-pf"):
         seed0 = report["per_seed"][0][m]
         assert len(seed0["rmse_runs"]) == 2 and seed0["rmse"] == pytest.approx(np.mean(seed0["rmse_runs"]), abs=2e-3)

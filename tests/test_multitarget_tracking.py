@@ -131,3 +131,23 @@ def test_identity_check_tells_swaps_from_people_standing_one_behind_the_other():
     far = est.copy()
     far[-3:, 1] += [30.0, 0.0]  # off its own person near the end
     assert identities_kept(far, truth, max_error=17.5).tolist() == [True, False, True]
+
+
+def test_paired_difference_by_hand():
+    from scipy.stats import t as student_t
+
+    from common.multitarget.metrics import paired_difference
+
+    a, b = [4.1, 4.3, 4.2], [4.5, 4.6, 4.4]
+    d = np.array(a) - np.array(b)  # -0.4, -0.3, -0.2
+    got = paired_difference(a, b)
+    half = student_t.ppf(0.975, 2) * d.std(ddof=1) / np.sqrt(3)  # 4.303 * 0.1 / 1.732 = 0.248
+    assert got["difference"] == pytest.approx(-0.3) and got["half_width"] == pytest.approx(half)
+    assert half == pytest.approx(0.2484, abs=1e-4) and got["verdict"] == "lower"
+    assert paired_difference(b, a)["verdict"] == "higher"
+    # the same mean difference with a run-to-run spread larger than it: undecided, not a win
+    noisy = paired_difference([4.1, 4.9, 3.9], [4.5, 4.6, 4.7])
+    assert noisy["difference"] == pytest.approx(-0.3) and noisy["verdict"] == "undecided"
+    assert paired_difference([4.0], [4.5]) == {"difference": -0.5, "half_width": None, "verdict": "undecided"}
+    with pytest.raises(ValueError, match="paired"):
+        paired_difference([], [])

@@ -10,7 +10,10 @@ tracked K times with independent filter seeds (the paper's Monte Carlo cycles; s
 100) and a method's RMSE on a scene is the mean over its runs; ``elpda_beats_pda`` compares those
 means, ``elpda_beats_pda_runs`` the single runs (run r of ELPDA against run r of PDA), and a
 scene's identities count as kept when every run kept them (``identities_kept_runs``: the share of
-single runs that did).
+single runs that did). ``elpda_vs_pda`` sorts the seeds by the paired difference ELPDA - PDA over
+the runs and its 95 % Student-t interval (:func:`~common.multitarget.metrics.paired_difference`): the
+shares of seeds where ELPDA is lower, higher, or undecided within the Monte Carlo noise (every seed
+is undecided with one run); ``per_seed`` has each seed's difference, half-width and verdict.
 
 Sweeps (paper Figs. 7-9) for EPMCMC + ELPDA and EPMCMC + PDA on ``--sweep-seeds`` seeds: combined
 RMSE against the number of targets (1-5), the number of parts (1, 2, 6, 10) and the gate size.
@@ -161,7 +164,8 @@ def _plots(main: list[dict], sweeps: dict, out_dir: Path) -> list[str]:
 
 
 def _print_table(summary: dict, wins: float, n: int, sweeps: dict, plots: list[str], runs: int = 1,
-                 wins_runs: float | None = None, init: str = "truth", first_seed: int = 0) -> None:
+                 wins_runs: float | None = None, init: str = "truth", first_seed: int = 0,
+                 vs: dict | None = None) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -177,6 +181,9 @@ def _print_table(summary: dict, wins: float, n: int, sweeps: dict, plots: list[s
     con.print(t)
     con.print(f"EPMCMC+ELPDA beats EPMCMC+PDA on {wins:.0%} of the seeds" + ("" if runs == 1 else
               f" (mean over {runs} runs each; single runs: {wins_runs:.0%})"))
+    if vs is not None and runs > 1:
+        con.print(f"beyond the Monte Carlo noise (95 % interval of the paired difference over the runs): ELPDA lower on "
+                  f"{vs['lower']:.0%} of the seeds, higher on {vs['higher']:.0%}, undecided on {vs['undecided']:.0%}")
     for kind, table in sweeps.items():
         st = Table(title=f"sweep: {kind}")
         st.add_column(kind)
@@ -191,6 +198,7 @@ def _print_table(summary: dict, wins: float, n: int, sweeps: dict, plots: list[s
 def run(args: argparse.Namespace) -> int:
     from common.cli import UsageError
     from common.multitarget import METHODS
+    from common.multitarget.metrics import paired_difference
 
     if args.seeds < 1 or args.workers < 1 or args.sweep_seeds < 1 or args.runs < 1:
         raise UsageError("--seeds, --sweep-seeds, --runs and --workers must be at least 1")
@@ -227,6 +235,9 @@ def run(args: argparse.Namespace) -> int:
     wins = float(np.mean([r["methods"]["epmcmc-elpda"]["rmse"] < r["methods"]["epmcmc-pda"]["rmse"] for r in main]))
     wins_runs = float(np.mean([a < b for r in main for a, b in zip(r["methods"]["epmcmc-elpda"]["rmse_runs"],
                                                                    r["methods"]["epmcmc-pda"]["rmse_runs"])]))
+    paired = [paired_difference(r["methods"]["epmcmc-elpda"]["rmse_runs"], r["methods"]["epmcmc-pda"]["rmse_runs"])
+              for r in main]
+    vs = {v: round(float(np.mean([p["verdict"] == v for p in paired])), 3) for v in ("lower", "higher", "undecided")}
     sweeps = {}
     for kind in sweeps_wanted:
         rows = [r for r in results if r["kind"] == kind]
@@ -237,12 +248,13 @@ def run(args: argparse.Namespace) -> int:
                  **{m: {"rmse": round(v["rmse"], 3), "identities_kept": v["identities_kept"],
                         "id_switches": v["id_switches"], "rmse_runs": [round(x, 3) for x in v["rmse_runs"]],
                         "identities_kept_runs": v["identities_kept_runs"]}
-                    for m, v in r["methods"].items()}}
-                for r in main]
+                    for m, v in r["methods"].items()},
+                 "elpda_minus_pda": {k: (round(x, 3) if isinstance(x, float) else x) for k, x in p.items()}}
+                for r, p in zip(main, paired)]
     report = {
         "seeds": args.seeds, "first_seed": args.first_seed, "runs": args.runs, "people": args.people, "frames": args.frames, "parts": args.parts,
         "gate": args.gate, "level": args.level, "init": args.init, "methods": summary, "elpda_beats_pda": round(wins, 3),
-        "elpda_beats_pda_runs": round(wins_runs, 3),
+        "elpda_beats_pda_runs": round(wins_runs, 3), "elpda_vs_pda": vs,
         "evidence_ms_per_frame": round(float(np.mean([r["evidence_ms_per_frame"] for r in main])), 2),
         "per_seed": per_seed, "sweeps": sweeps, "sweep_seeds": args.sweep_seeds, "plots": plots,
     }
@@ -250,5 +262,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report))
     else:
-        _print_table(summary, wins, len(main), sweeps, plots, args.runs, wins_runs, args.init, args.first_seed)
+        _print_table(summary, wins, len(main), sweeps, plots, args.runs, wins_runs, args.init, args.first_seed, vs)
     return 0
