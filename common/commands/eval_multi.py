@@ -10,7 +10,7 @@ tracked K times with independent filter seeds (the paper's Monte Carlo cycles; s
 100) and a method's RMSE on a scene is the mean over its runs; ``elpda_beats_pda`` compares those
 means, ``elpda_beats_pda_runs`` the single runs (run r of ELPDA against run r of PDA), and a
 scene's identities count as kept when every run kept them (``identities_kept_runs``: the share of
-single runs that did). ``elpda_vs_pda`` sorts the seeds by the paired difference ELPDA - PDA over
+single runs that did). ``elpda_vs_pda`` classifies the seeds by the paired difference ELPDA - PDA over
 the runs and its 95 % Student-t interval (:func:`~common.multitarget.metrics.paired_difference`): the
 shares of seeds where ELPDA is lower, higher, or undecided within the Monte Carlo noise (every seed
 is undecided with one run); ``per_seed`` has each seed's difference, half-width and verdict.
