@@ -11,7 +11,7 @@ settings therefore give bit-identical estimates in-process, multi-process and on
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterable, Iterator
 
 import numpy as np
@@ -128,6 +128,7 @@ class Tracker:
     _world_xy: np.ndarray | None = None
     _local: bool = False
     _first_h: np.ndarray | None = None
+    _box_size: tuple[float, float] = (0.0, 0.0)
 
     @classmethod
     def start(cls, first: Frame, init_box: tuple[float, float, float, float], settings: TrackerSettings,
@@ -156,6 +157,7 @@ class Tracker:
                       stabiliser=stab, scale=scale, adapter=adapter, factor=k0)
         tracker._local = local
         tracker._first_h = h0
+        tracker._box_size = (float(w), float(h))
         return tracker
 
     def observation(self, frame: Frame, homography=_SOURCE, factor: float | None = None):
@@ -205,6 +207,8 @@ class Tracker:
             self.scale.maybe_search(frame.time, lambda k, xy: self.detector.scale_grid(frame, k, xy), state)
         except ObservationUnavailable:
             pass  # a remote detector did not answer: no correction this time
+        state = replace(state, size=(self._box_size[0] * self.scale.s, self._box_size[1] * self.scale.s))
+        self.last_state = state
         self.homography = None if h is None else np.asarray(h, float)
         if self._local:
             # carry the particles into this frame's pixels, in the target's (new) length

@@ -21,7 +21,7 @@ def short_track(tmp_path_factory):
 
 def test_track_csv_and_accuracy(short_track):
     rows = short_track
-    assert list(rows[0].keys()) == ["frame", "x", "y", "theta_deg", "p_visible"]
+    assert list(rows[0].keys()) == ["frame", "x", "y", "theta_deg", "p_visible", "w", "h"]
     assert [int(r["frame"]) for r in rows] == list(range(40))
     src = open_source("synthetic:2", n_frames=40)
     errs = [np.hypot(float(r["x"]) - src.true_centre(i)[0], float(r["y"]) - src.true_centre(i)[1])
@@ -32,6 +32,30 @@ def test_track_csv_and_accuracy(short_track):
     t0 = src.frame(0).truth.angle_deg
     true_rel = (src.frame(39).truth.angle_deg - t0 + 180) % 360 - 180
     assert abs((float(rows[39]["theta_deg"]) - true_rel + 180) % 360 - 180) < 6.0
+
+
+def test_track_csv_boxes_against_truth(short_track):
+    """The oriented box (x, y, w, h, theta_deg) turned into its axis-aligned envelope overlaps the
+    synthetic car's true axis-aligned body box; a box of the wrong size is the negative control."""
+    from common.tracking.state import oriented_to_axis_aligned
+
+    src = open_source("synthetic:2", n_frames=40)
+
+    def iou(a, b):
+        ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+        iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+        inter = ix * iy
+        return inter / (a[2] * a[3] + b[2] * b[3] - inter)
+
+    ious, wrong = [], []
+    for i, r in enumerate(rows := short_track):
+        x, y, w, h, th = (float(r[k]) for k in ("x", "y", "w", "h", "theta_deg"))
+        truth = src.frame(i).truth.box
+        ious.append(iou(oriented_to_axis_aligned(x, y, w, h, th), truth))
+        wrong.append(iou(oriented_to_axis_aligned(x, y, 2.5 * w, 2.5 * h, th), truth))
+    assert float(rows[0]["w"]) == pytest.approx(src.frame(0).truth.box[2], abs=1e-3)
+    assert np.median(ious) > 0.6
+    assert np.median(wrong) < 0.3
 
 
 def test_track_is_deterministic(short_track, tmp_path):

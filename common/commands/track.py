@@ -2,7 +2,8 @@
 
 Columns: frame (from 0, source order), x, y (image pixel centre of the estimate: the MAP for
 the particle filters), theta_deg (rotation relative to the first frame's template,
-anticlockwise as displayed), p_visible (posterior probability that the target is visible).
+anticlockwise as displayed), p_visible (posterior probability that the target is visible),
+w, h (the target's box in pixels before the rotation by theta_deg: with x, y an oriented box).
 
 With a multi-target filter (``--filter epmcmc-elpda|epmcmc-pda|jpda-pf``) it tracks several
 articulated people from their first-frame boxes (``--init X,Y,W,H;X,Y,W,H``, ``--init`` repeated or
@@ -39,9 +40,11 @@ def run(args: argparse.Namespace) -> int:
     def rows():
         for frame, state in track_frames(source, init, settings):
             x, y = point_estimate(state)
-            yield [[frame.index, f"{x:.3f}", f"{y:.3f}", f"{state.map_estimate.theta:.3f}", f"{state.p_visible:.6f}"]]
+            w, h = state.size if state.size is not None else (float("nan"), float("nan"))
+            yield [[frame.index, f"{x:.3f}", f"{y:.3f}", f"{state.map_estimate.theta:.3f}", f"{state.p_visible:.6f}",
+                    f"{w:.3f}", f"{h:.3f}"]]
 
-    return _write_csv(args, ["frame", "x", "y", "theta_deg", "p_visible"], rows(), source)
+    return _write_csv(args, ["frame", "x", "y", "theta_deg", "p_visible", "w", "h"], rows(), source)
 
 
 def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int:

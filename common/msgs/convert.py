@@ -21,7 +21,9 @@ def estimate_msg(frame_index: int, capture_ns: int, state, filter_name: str, ski
         x=m.image_x, y=m.image_y, theta_deg=m.theta, p_visible=state.p_visible, world_x=m.x, world_y=m.y,
         vx=m.vx, vy=m.vy, speed=state.speed, mmse_x=mm.image_x, mmse_y=mm.image_y,
         n_eff=float(state.n_eff) if np.isfinite(state.n_eff) else 0.0, resampled=bool(state.resampled),
-        frames_skipped=skipped, step_ms=step_ms, latency_ms=(time.time_ns() - capture_ns) / 1e6)
+        frames_skipped=skipped, step_ms=step_ms, latency_ms=(time.time_ns() - capture_ns) / 1e6,
+        w=state.size[0] if state.size else 0.0, h=state.size[1] if state.size else 0.0,
+        reacquired=bool(state.reacquired))
 
 
 def particles_msg(frame_index: int, state) -> ParticleCloud | None:

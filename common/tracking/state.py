@@ -148,6 +148,23 @@ class TrackState:
     """Raw detector score at the MAP hypothesis (windowed ML: the window maximum); None if unobserved."""
     search_window: tuple[float, float, int] | None = None
     """Windowed ML only: (centre x, centre y, side) of this frame's search window, pixels."""
+    size: tuple[float, float] | None = None
+    """(w, h) of the target's box in image pixels, before the rotation by ``orientation``: the first
+    box's sides times the apparent scale (set by :class:`common.runner.Tracker`; None from a bare filter)."""
+    reacquired: bool = False
+    """Whether this frame's estimate comes from a re-acquisition (the filter re-locked on a detection)."""
+
+    def oriented_box(self) -> tuple[float, float, float, float, float] | None:
+        """(cx, cy, w, h, theta_deg) of the MAP estimate's oriented box; None without a size."""
+        if self.size is None:
+            return None
+        m = self.map_estimate
+        return (m.image_x, m.image_y, self.size[0], self.size[1], m.theta)
+
+    def axis_aligned_box(self) -> tuple[float, float, float, float] | None:
+        """(x, y, w, h) of the axis-aligned box around :meth:`oriented_box` (the benchmarks' box)."""
+        ob = self.oriented_box()
+        return None if ob is None else oriented_to_axis_aligned(*ob)
 
     def __post_init__(self) -> None:
         for name in ("particles", "particles_image", "particle_visibility", "weights"):
@@ -169,6 +186,15 @@ class TrackState:
             elif a != b:
                 return False
         return True
+
+
+def oriented_to_axis_aligned(cx: float, cy: float, w: float, h: float, theta_deg: float
+                             ) -> tuple[float, float, float, float]:
+    """(x, y, w, h) of the smallest axis-aligned box holding a w x h box centred on (cx, cy) and
+    turned by ``theta_deg``."""
+    c, s = abs(math.cos(math.radians(theta_deg))), abs(math.sin(math.radians(theta_deg)))
+    bw, bh = w * c + h * s, w * s + h * c
+    return (cx - bw / 2.0, cy - bh / 2.0, bw, bh)
 
 
 def summarise_particles(
