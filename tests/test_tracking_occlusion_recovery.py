@@ -1,8 +1,8 @@
 """The synthetic scene's hardest event, end to end: a car emerging from 1.5 s of full smoke.
 
-On seed 5 (also 6 and 11 of seeds 0-12) Pang's RBPF commits to the secondary peak half a car
-length ahead of the emerging car (its visible front half matches the template shifted) and stays
-there; the jump component of
+On seed 5 (also 6 and 11 of seeds 0-12) Pang's RBPF committed to the secondary peak half a car
+length ahead of the emerging car (its visible front half matches the template shifted) on the
+machine the seeds were chosen on; the jump component of
 ``RECOVERY_PROPOSAL`` brings the track back within 10 frames of re-emergence (``polartrack
 study`` measures this over 20 seeds)."""
 
@@ -36,10 +36,10 @@ def _errors(seed: int, extra: dict, frames: int) -> tuple[np.ndarray, int]:
 
 @pytest.mark.parametrize("seed", [5])
 def test_jump_component_recovers_where_pangs_filter_locks_on_an_offset_peak(seed):
-    plain, re = _errors(seed, {}, 165)
+    # Whether Pang's plain filter locks on the offset peak here is chaotic: it did on the machine the
+    # seed was chosen on and recovers on others (BLAS kernels differ in the last bits), so it is no
+    # negative control; the jump component must recover either way.
+    jumps, re = _errors(seed, RECOVERY_PROPOSAL, 165)
     assert re is not None and re + 20 <= 165
-    assert not recovered(plain, re)  # negative control: the offset lock
-    assert 15 < np.median(plain[re:re + 20]) < 30  # about half a car length off, not lost
-    jumps, _ = _errors(seed, RECOVERY_PROPOSAL, 165)
     assert recovered(jumps, re)
     assert np.median(jumps[re:re + 20]) < 3
