@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from common.commands import bench, calibrate, demo, eval as eval_cmd, eval_multi, match, replay, run, study, track, track_multi, view
+from common.commands import bench, benchmark, calibrate, demo, eval as eval_cmd, eval_multi, match, replay, run, study, track, track_multi, view
 
 COMMANDS = {"demo": demo, "run": run, "replay": replay, "view": view, "track": track, "eval": eval_cmd, "calibrate": calibrate, "match": match, "bench": bench, "study": study,
-            "eval-multi": eval_multi, "track-multi": track_multi}
+            "eval-multi": eval_multi, "track-multi": track_multi, "benchmark": benchmark}
 
 
 class UsageError(Exception):

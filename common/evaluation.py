@@ -31,13 +31,20 @@ def centre_errors(estimates: np.ndarray, truths: np.ndarray) -> np.ndarray:
     return np.hypot(estimates[:, 0] - truths[:, 0], estimates[:, 1] - truths[:, 1])
 
 
+def precision_curve(errors: np.ndarray, thresholds: np.ndarray = THRESHOLDS) -> np.ndarray:
+    """Fraction of ``errors`` (px, one per scored frame; NaN or inf: a miss) at most each threshold."""
+    e = np.asarray(errors, float)
+    e = np.where(np.isfinite(e), e, np.inf)
+    return np.array([(e <= t).mean() for t in thresholds])
+
+
 def score_run(errors: np.ndarray, visible: np.ndarray) -> RunScore:
     """Precision and AUC over the frames where the target is ``visible`` (bool per frame)."""
     e = np.asarray(errors, float)[np.asarray(visible, bool)]
     if e.size == 0:
         return RunScore(float("nan"), float("nan"), float("nan"), len(errors), 0)
     e = np.where(np.isfinite(e), e, np.inf)
-    prec = np.array([(e <= t).mean() for t in THRESHOLDS])
+    prec = precision_curve(e)
     return RunScore(float((e <= 20).mean()), float(prec.mean()), float(np.mean(e[np.isfinite(e)])) if np.isfinite(e).any()
                     else float("inf"), len(errors), int(e.size))
 

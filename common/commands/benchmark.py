@@ -1,0 +1,240 @@
+"""Benchmark the tracker on many UAV123 / OTB sequence folders, optionally beside OpenCV's peers.
+
+Each SEQ_DIR is a folder ``img/*.jpg`` + ``groundtruth_rect.txt`` (see ../shared/data/README.md;
+UAV123's 1-based boxes and NaN rows are handled as by ``polartrack track``). PolarTrack runs
+in-process exactly as ``track`` and ``eval`` run it, from the first ground-truth box with the
+source's profile (``--set`` overrides); its box per frame is the axis-aligned box around its
+oriented box. ``--peers`` adds OpenCV's CSRT, KCF and NanoTrack v2 from the same first box (rounded
+to whole pixels, as OpenCV takes it), run by tools/opencv_baselines.py in an isolated environment
+with opencv-contrib-python-headless (``uv run --isolated``: the product does not depend on it nor
+on NanoTrack's ONNX files). One scorer (common/benchmark.py) scores every tracker's boxes: over the
+frames where the target is visible (NaN ground truth left out, as OTB and UAV123 do),
+precision20, auc50 (precision over 0-50 px), success_auc (OTB: fraction of frames with IoU above
+0, 0.05, ..., 1.0, averaged; 20/21 at best), mean_err (px), frames_lost (frames whose box does
+not overlap the target, IoU = 0) and fps (frames over the time in the tracker's start and steps,
+reading the images not included); the mean weighs every sequence the same. Writes under --out
+precision.png and success.png (one curve per tracker, AUC in the legend), errors-SEQ.png per
+sequence (centre error per frame) and benchmark.json (what --json prints).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HELP = "benchmark on UAV123/OTB sequence folders (precision, success AUC, fps; --peers: CSRT, KCF, NanoTrack)"
+REPO = Path(__file__).resolve().parents[2]
+PEERS_TOOL = REPO / "tools" / "opencv_baselines.py"
+PEERS = ("csrt", "kcf", "nanotrack")
+NANOTRACK_FILES = ("nanotrack_backbone_sim.onnx", "nanotrack_head_sim.onnx")
+PEER_ENV = ["--isolated", "--no-project", "--with", "opencv-contrib-python-headless", "--with", "numpy"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("sequences", nargs="+", metavar="SEQ_DIR", help="UAV123/OTB folders: img/*.jpg + groundtruth_rect.txt")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", metavar="DIR", default="recordings/benchmark",
+                   help="where to write the plots and benchmark.json (default recordings/benchmark)")
+    p.add_argument("--peers", action="store_true", help="also OpenCV's CSRT, KCF and NanoTrack v2 (isolated environment)")
+    p.add_argument("--nanotrack-dir", metavar="DIR", default="../shared/models/nanotrack-v2",
+                   help="NanoTrack v2's ONNX files for --peers (default ../shared/models/nanotrack-v2)")
+    p.add_argument("--frames", type=int, metavar="N", help="only the first N frames of each sequence")
+    p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="PolarTrack's filter")
+    p.add_argument("--particles", type=int, metavar="N", help="number of particles (rbpf, sir)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the filter's random generator")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                   help="override a tracker setting by its dotted name (repeatable), as on track and eval")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
+
+
+def open_sequences(args) -> list:
+    """Every SEQ_DIR opened and checked before anything runs: (source, first box, settings)."""
+    from common.cli import UsageError
+    from common.commands.common_args import settings_for
+    from common.sources import SourceError, open_source
+
+    if args.frames is not None and args.frames < 1:
+        raise UsageError("--frames must be at least 1")
+    out = []
+    for spec in args.sequences:
+        if not Path(spec).is_dir():
+            raise UsageError(f"{spec}: not a folder (SEQ_DIR is a sequence folder: img/*.jpg + groundtruth_rect.txt)")
+        try:
+            source = open_source(spec, n_frames=args.frames)
+        except SourceError as exc:
+            raise UsageError(str(exc)) from None
+        if not source.has_truth:
+            raise UsageError(f"{spec}: not a sequence: no groundtruth_rect.txt (one x,y,w,h line per frame)")
+        first = source.truth[0]
+        if first is None:
+            raise UsageError(f"{spec}: the first frame has no ground-truth box (NaN); the trackers start from it")
+        out.append((spec, source, tuple(float(v) for v in first), settings_for(args, source, args.filter)))
+    return out
+
+
+def peer_command(args) -> list[str]:
+    """The ``uv run --isolated ...`` prefix of the peers' tool, after checking what it needs."""
+    from common.cli import UsageError
+
+    missing = [str(Path(args.nanotrack_dir) / f) for f in NANOTRACK_FILES if not (Path(args.nanotrack_dir) / f).is_file()]
+    if missing:
+        raise UsageError(f"--peers: NanoTrack model file {missing[0]} not found (--nanotrack-dir DIR must hold "
+                         f"{' and '.join(NANOTRACK_FILES)})")
+    uv = shutil.which("uv")
+    if uv is None:
+        raise UsageError("--peers: needs uv on PATH (it runs the OpenCV peers in an isolated environment)")
+    if not PEERS_TOOL.is_file():
+        raise UsageError(f"--peers: {PEERS_TOOL} not found (run from a checkout of the repository)")
+    return [uv, "run", *PEER_ENV, "python", str(PEERS_TOOL)]
+
+
+def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float]:
+    """PolarTrack's axis-aligned box per frame (NaN rows where it has none) and its seconds."""
+    from common.runner import Tracker
+
+    tracker, boxes, elapsed = None, [], 0.0
+    for frame in source:
+        t0 = time.perf_counter()
+        if tracker is None:
+            tracker = Tracker.start(frame, init, settings)
+        state = tracker.step(frame)
+        elapsed += time.perf_counter() - t0
+        box = state.axis_aligned_box()
+        boxes.append((np.nan,) * 4 if box is None else box)
+        bar.update(1)
+    return np.asarray(boxes, float), elapsed
+
+
+def run_peers(prefix: list[str], spec: str, init, args, n_frames: int, bar) -> dict:
+    """The peers' output (tools/opencv_baselines.py's JSON) on one sequence, ``bar`` following its
+    'progress N' lines."""
+    from common.cli import UsageError
+
+    cmd = [*prefix, str(Path(spec).resolve()), "--init", ",".join(repr(float(v)) for v in init),
+           "--frames", str(n_frames), "--nanotrack-dir", str(Path(args.nanotrack_dir).resolve()), "--progress"]
+    env = {k: v for k, v in os.environ.items() if k != "VIRTUAL_ENV"}
+    tail: list[str] = []
+    with tempfile.TemporaryFile("w+") as stdout:
+        proc = subprocess.Popen(cmd, stdout=stdout, stderr=subprocess.PIPE, text=True, env=env)
+        done = 0
+        for line in proc.stderr:
+            if line.startswith("progress "):
+                n = int(line.split()[1])
+                bar.update(n - done)
+                done = n
+            elif line.strip():
+                tail = (tail + [line.strip()])[-3:]
+        proc.wait()
+        stdout.seek(0)
+        text = stdout.read()
+    if proc.returncode != 0:
+        raise UsageError(f"--peers on {spec}: {tail[-1] if tail else f'exit status {proc.returncode}'}")
+    result = json.loads(text)
+    if result["frames"] != n_frames:
+        raise UsageError(f"--peers on {spec}: the peers saw {result['frames']} frames, PolarTrack {n_frames}")
+    return result
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from common.benchmark import as_boxes, mean_scores, score_boxes
+    from common.benchmark_plots import plot_curves, plot_errors_over_time
+    from common.cli import UsageError
+    from common.runner import InitError
+    from common.sources import SourceError
+
+    sequences = open_sequences(args)
+    prefix = peer_command(args) if args.peers else None
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    trackers = ["polartrack", *(PEERS if args.peers else ())]
+    rows, curves, plots, opencv = [], {"precision": {}, "success": {}}, {}, None
+    quiet = args.no_progress
+    for spec, source, init, settings in tqdm(sequences, unit="seq", desc="benchmark", disable=quiet, file=sys.stderr):
+        truth = as_boxes(source.truth)
+        with tqdm(total=len(source), unit="frame", desc=f"{source.name} polartrack", disable=quiet,
+                  file=sys.stderr, leave=False) as bar:
+            try:
+                boxes, elapsed = run_polartrack(source, init, settings, bar)
+            except (InitError, SourceError) as exc:
+                raise UsageError(f"{spec}: {exc}") from None
+        runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 else float("nan"))}
+        if prefix is not None:
+            with tqdm(total=len(source) * len(PEERS), unit="frame", desc=f"{source.name} peers", disable=quiet,
+                      file=sys.stderr, leave=False) as bar:
+                peers = run_peers(prefix, spec, init, args, len(source), bar)
+            opencv = peers["opencv"]
+            for name in PEERS:
+                r = peers["trackers"][name]
+                runs[name] = (np.asarray(r["boxes"], float), r["fps"])
+        scores = {name: score_boxes(b, truth) for name, (b, _) in runs.items()}
+        results = {}
+        for name, sc in scores.items():
+            fps = runs[name][1]
+            results[name] = {**sc.as_dict(), "fps": None if fps is None else round(float(fps), 1)}
+            curves["precision"].setdefault(name, []).append(sc.precision)
+            curves["success"].setdefault(name, []).append(sc.success)
+        plot = out_dir / f"errors-{source.name}.png"
+        visible = ~np.isnan(truth).any(axis=1)
+        plot_errors_over_time({n: sc.errors for n, sc in scores.items()}, visible, plot,
+                              f"{source.name}: centre error per frame")
+        plots[source.name] = str(plot)
+        rows.append({"sequence": source.name, "path": spec, "frames": len(source),
+                     "visible_frames": int(visible.sum()), "init_box": list(init), "trackers": results})
+    mean = {name: mean_scores([r["trackers"][name] for r in rows]) for name in trackers}
+    title = f"{len(rows)} sequence{'s' if len(rows) != 1 else ''}"
+    for kind in ("precision", "success"):
+        plot_curves(curves[kind], kind, out_dir / f"{kind}.png", f"{kind} plot, {title}")
+    summary = {"trackers": trackers, "sequences": rows, "mean": mean,
+               "plots": {"precision": str(out_dir / "precision.png"), "success": str(out_dir / "success.png"),
+                         "errors": plots},
+               "definitions": {"scored_frames": "frames whose ground truth is a box (NaN rows left out)",
+                               "success_auc": "mean over IoU thresholds 0, 0.05, ..., 1 of the fraction of "
+                                              "scored frames with IoU above the threshold (OTB)",
+                               "frames_lost": "scored frames whose box does not overlap the truth (IoU = 0)",
+                               "mean": "mean over sequences, each weighing the same"}}
+    if opencv is not None:
+        summary["opencv"] = opencv
+    (out_dir / "benchmark.json").write_text(json.dumps(summary, indent=1))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print_table(summary)
+    return 0
+
+
+def print_table(summary: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="polartrack benchmark (scored: frames with a ground-truth box)")
+    for col in ("sequence", "tracker", "scored/frames", "precision20", "auc50", "success AUC", "lost", "fps"):
+        table.add_column(col, justify="left" if col in ("sequence", "tracker") else "right")
+
+    def add(seq: str, frames: str, results: dict) -> None:
+        for i, (name, r) in enumerate(results.items()):
+            fps = "-" if r.get("fps") is None else f"{r['fps']:.1f}"
+            lost = f"{r['frames_lost']:g}" if isinstance(r["frames_lost"], float) else str(r["frames_lost"])
+            table.add_row(seq if i == 0 else "", name, frames if i == 0 else "", f"{r['precision20']:.3f}",
+                          f"{r['auc50']:.3f}", f"{r['success_auc']:.3f}", lost, fps,
+                          end_section=i == len(results) - 1)
+
+    for row in summary["sequences"]:
+        add(row["sequence"], f"{row['visible_frames']}/{row['frames']}", row["trackers"])
+    add("mean", f"{len(summary['sequences'])} seq", summary["mean"])
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=max(console.width, 110))  # a pipe or a file: no truncated names
+    console.print(table)
+    plots = summary["plots"]
+    print(f"plots: {plots['precision']}, {plots['success']}, {len(plots['errors'])} error plots")

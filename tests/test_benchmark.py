@@ -1,0 +1,192 @@
+"""polartrack benchmark: the shared scorer against hand-computed cases, the command end to end on a
+tiny sequence folder written here, its bad-input errors, and (where an isolated OpenCV-contrib
+environment can be made offline) the peers' subprocess."""
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from common.benchmark import SUCCESS_THRESHOLDS, box_iou, mean_scores, score_boxes, success_curve
+from common.cli import main
+from common.evaluation import precision_curve
+from common.sources import SyntheticSource
+
+from imagegen import REPO
+
+MODELS = REPO.parent / "shared" / "models" / "nanotrack-v2"
+NAN = (np.nan,) * 4
+
+
+# ----- the scorer ---------------------------------------------------------------------------------
+
+def test_iou_known_cases():
+    a = np.array([[0, 0, 4, 4], [0, 0, 4, 4], [0, 0, 4, 4], [0, 0, 4, 4], [0, 0, 2, 2], [0, 0, 4, 4]], float)
+    b = np.array([[2, 2, 4, 4],  # 2x2 overlap of two 4x4: 4 / (16 + 16 - 4) = 1/7
+                  [0, 0, 4, 4],  # identical
+                  [4, 0, 4, 4],  # touching edges only
+                  [1, 0, 2, 4],  # inside: 8 / 16
+                  [10, 10, 0, 0],  # no area, apart
+                  NAN], float)
+    iou = box_iou(a, b)
+    assert iou[:5] == pytest.approx([1 / 7, 1.0, 0.0, 0.5, 0.0])
+    assert np.isnan(iou[5])
+    assert box_iou(b[:1], a[:1]) == pytest.approx(1 / 7)  # symmetric
+
+
+def test_precision_curve_by_hand():
+    e = np.array([0.0, 10.0, 20.0, 30.0, 60.0])
+    curve = precision_curve(e)
+    assert curve[20] == pytest.approx(3 / 5) and curve[9] == pytest.approx(1 / 5) and curve[50] == pytest.approx(4 / 5)
+    # thresholds 0..50: 0 counts at all 51, 10 at 41, 20 at 31, 30 at 21, 60 at none
+    assert curve.mean() == pytest.approx((51 + 41 + 31 + 21) / (5 * 51))
+    assert precision_curve(np.array([np.nan, 0.0]))[0] == 0.5  # no estimate: a miss
+
+
+def test_success_curve_and_auc_by_hand():
+    assert len(SUCCESS_THRESHOLDS) == 21 and SUCCESS_THRESHOLDS[1] == pytest.approx(0.05)
+    ious = np.array([1.0, 0.52, 1 / 7, 0.0])
+    s = success_curve(ious)
+    # IoU 1 is above 20 thresholds (not 1.0 itself), 0.52 above 11 (0..0.5), 1/7 above 3, 0 above none
+    assert s.mean() == pytest.approx((20 + 11 + 3 + 0) / (4 * 21))
+    assert s[0] == pytest.approx(3 / 4) and s[-1] == 0.0
+    assert success_curve(np.array([np.nan]))[0] == 0.0  # no box: a miss
+
+
+def test_score_boxes_excludes_frames_without_truth():
+    truth = [(0, 0, 4, 4), (0, 0, 4, 4), None, (0, 0, 4, 4), (0, 0, 4, 4)]
+    boxes = [(0, 0, 4, 4),      # IoU 1, error 0
+             (2, 2, 4, 4),      # IoU 1/7, error sqrt(8)
+             (500, 500, 4, 4),  # far off, but the target is not visible here: not scored
+             (100, 100, 4, 4),  # IoU 0, error 141: lost
+             NAN]               # no box: lost
+    sc = score_boxes(boxes, truth)
+    assert (sc.frames, sc.visible_frames) == (5, 4)
+    assert sc.precision20 == pytest.approx(2 / 4)
+    assert sc.auc50 == pytest.approx((51 + 48 + 0 + 0) / (4 * 51))  # sqrt(8) = 2.83 is within 3..50
+    assert sc.success_auc == pytest.approx((20 + 3) / (4 * 21))
+    assert sc.frames_lost == 2
+    assert sc.mean_err == pytest.approx(np.mean([0, np.sqrt(8), np.hypot(100, 100)]))
+    assert np.isnan(sc.ious[2]) and np.isnan(sc.errors[2])
+    # negative control: the same far-off box on a frame with truth counts against the tracker
+    sc2 = score_boxes(boxes, [(0, 0, 4, 4)] * 5)
+    assert sc2.visible_frames == 5 and sc2.frames_lost == 3 and sc2.precision20 == pytest.approx(2 / 5)
+    with pytest.raises(ValueError):
+        score_boxes(boxes[:3], truth)
+
+
+def test_mean_over_sequences():
+    m = mean_scores([{"precision20": 1.0, "fps": 10.0, "frames_lost": 0}, {"precision20": 0.5, "fps": 30.0, "frames_lost": 3}])
+    assert m == {"precision20": 0.75, "frames_lost": 1.5, "fps": 20.0, "sequences": 2}
+
+
+# ----- the command --------------------------------------------------------------------------------
+
+def write_sequence(folder: Path, n: int = 12, nan_rows: tuple[int, ...] = (), extra_lines: int = 0) -> Path:
+    """``n`` synthetic frames as JPEGs under ``folder/img`` and their truth boxes (0-based) as
+    ``groundtruth_rect.txt``, NaN on ``nan_rows``."""
+    src = SyntheticSource(seed=0, n_frames=n)
+    (folder / "img").mkdir(parents=True)
+    lines = []
+    for i in range(n):
+        f = src.frame(i)
+        cv2.imwrite(str(folder / "img" / f"{i + 1:04d}.jpg"), f.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+        box = None if i in nan_rows else f.truth.box
+        lines.append("NaN,NaN,NaN,NaN" if box is None else ",".join(f"{v:.2f}" for v in box))
+    lines += ["1,1,5,5"] * extra_lines
+    (folder / "groundtruth_rect.txt").write_text("\n".join(lines) + "\n")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    return write_sequence(tmp_path_factory.mktemp("bench") / "carseq", nan_rows=(6,))
+
+
+def test_benchmark_end_to_end(sequence, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["benchmark", str(sequence), "--json", "--out", str(out), "--frames", "10", "--no-progress"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["trackers"] == ["polartrack"]
+    (row,) = res["sequences"]
+    assert (row["sequence"], row["frames"], row["visible_frames"]) == ("carseq", 10, 9)  # frame 6 has NaN truth
+    pt = row["trackers"]["polartrack"]
+    assert set(pt) >= {"precision20", "auc50", "success_auc", "mean_err", "frames_lost", "fps", "visible_frames"}
+    assert pt["visible_frames"] == 9
+    assert pt["precision20"] == 1.0 and pt["frames_lost"] == 0 and pt["fps"] > 0
+    assert pt["mean_err"] < 5.0
+    assert 0.5 < pt["success_auc"] <= 20 / 21  # the axis-aligned envelope overlaps the car's box
+    assert res["mean"]["polartrack"]["precision20"] == pt["precision20"] and res["mean"]["polartrack"]["sequences"] == 1
+    for path in (res["plots"]["precision"], res["plots"]["success"], res["plots"]["errors"]["carseq"]):
+        assert Path(path).is_file() and Path(path).stat().st_size > 1000
+    assert json.loads((out / "benchmark.json").read_text())["sequences"][0]["trackers"] == row["trackers"]
+
+
+def test_benchmark_table(sequence, tmp_path, capsys):
+    """Two sequences (the same folder twice): a row per sequence and tracker, and the mean."""
+    assert main(["benchmark", str(sequence), str(sequence), "--out", str(tmp_path), "--frames", "3", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert text.count("carseq") == 2 and "mean" in text and "polartrack" in text and "success AUC" in text
+
+
+def one_line_error(capsys, argv) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("polartrack benchmark: error:")
+    return err
+
+
+def test_mismatched_groundtruth(tmp_path, capsys):
+    bad = write_sequence(tmp_path / "bad", n=3, extra_lines=1)
+    err = one_line_error(capsys, ["benchmark", str(bad), "--out", str(tmp_path / "o"), "--no-progress"])
+    assert "4 boxes" in err and "3 frames" in err
+
+
+def test_not_a_sequence(tmp_path, capsys):
+    (tmp_path / "frames").mkdir()
+    cv2.imwrite(str(tmp_path / "frames" / "0001.jpg"), np.zeros((64, 64, 3), np.uint8))
+    err = one_line_error(capsys, ["benchmark", str(tmp_path / "frames"), "--no-progress"])
+    assert "groundtruth_rect.txt" in err
+    err = one_line_error(capsys, ["benchmark", str(tmp_path / "nowhere"), "--no-progress"])
+    assert "not a folder" in err
+
+
+def test_peers_missing_model_checked_first(sequence, tmp_path, capsys):
+    """The model files are checked before anything runs: no plots written."""
+    models = tmp_path / "models"
+    models.mkdir()
+    (models / "nanotrack_backbone_sim.onnx").write_bytes(b"x")  # the head is missing
+    out = tmp_path / "out"
+    err = one_line_error(capsys, ["benchmark", str(sequence), "--peers", "--nanotrack-dir", str(models),
+                                  "--out", str(out), "--no-progress"])
+    assert "nanotrack_head_sim.onnx" in err and "not found" in err
+    assert not out.exists()
+
+
+def _peer_env_offline() -> bool:
+    uv = shutil.which("uv")
+    if uv is None:
+        return False
+    probe = subprocess.run([uv, "run", "--offline", "--isolated", "--no-project", "--with", "opencv-contrib-python-headless",
+                            "--with", "numpy", "python", "-c", "import cv2; cv2.TrackerNano_create"],
+                           capture_output=True, timeout=120)
+    return probe.returncode == 0
+
+
+@pytest.mark.skipif(not (MODELS / "nanotrack_head_sim.onnx").is_file(), reason="no NanoTrack models in ../shared/models")
+def test_peers_subprocess(sequence, tmp_path, capsys, monkeypatch):
+    if not _peer_env_offline():
+        pytest.skip("no isolated opencv-contrib environment without the network (uv cache empty)")
+    monkeypatch.setenv("UV_OFFLINE", "1")
+    assert main(["benchmark", str(sequence), "--peers", "--nanotrack-dir", str(MODELS), "--json", "--frames", "5",
+                 "--out", str(tmp_path), "--no-progress"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["trackers"] == ["polartrack", "csrt", "kcf", "nanotrack"] and res["opencv"]
+    for name in ("csrt", "kcf", "nanotrack"):
+        r = res["sequences"][0]["trackers"][name]
+        assert r["visible_frames"] == 5 and r["fps"] > 0
+        assert r["precision20"] == 1.0  # five frames of a car moving a few pixels: every peer holds it
