@@ -44,6 +44,10 @@ class BusConfig(BaseModel):
                                   "through it; smaller ones (queries, replies, estimates) through the socket, "
                                   "which is quicker for them (with every message through shared memory, bench --pipeline "
                                   "made 3.7 fps; with the frames only, 11)")
+    ids: dict[str, str] = Field(default_factory=dict, description="The run's per-service sender ids "
+                                "({service: id}, given by the launcher): every message carries its sender's id, "
+                                "and a service accepts a key only from the run's services that speak on it "
+                                "(common.validation.SPEAKERS). Empty: every sender accepted")
 
     def zenoh_config(self) -> zenoh.Config:
         c = zenoh.Config()
@@ -73,25 +77,82 @@ def open_session(bus: BusConfig) -> zenoh.Session:
     return zenoh.open(bus.zenoh_config())
 
 
-def publisher(session: zenoh.Session, key: str):
+_IDENTITY = b""
+"""This process's sender id (set once by :func:`set_identity`), appended to every attachment."""
+
+
+def set_identity(sender: str) -> None:
+    """This process speaks as ``sender`` (its per-run id; "" for none) from now on."""
+    global _IDENTITY
+    _IDENTITY = sender.encode()[:64]
+
+
+class Publisher:
+    """A Zenoh publisher whose every message carries this process's sender id (an attachment
+    of the current time when the caller gives none)."""
+
+    def __init__(self, pub):
+        self._pub = pub
+
+    def put(self, data, attachment: bytes | None = None, **kwargs) -> None:
+        if attachment is None and _IDENTITY:
+            attachment = ns_attachment(time.time_ns())
+        if attachment is None:
+            self._pub.put(data, **kwargs)
+        else:
+            self._pub.put(data, attachment=attachment, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self._pub, name)
+
+
+def publisher(session: zenoh.Session, key: str) -> Publisher:
     """A reliable publisher that blocks rather than drops when the link is congested: every
     message must reach the recorder (Zenoh's default for puts is to drop under congestion,
     which lost whole 2.7 MB frames)."""
-    return session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
-                                     reliability=zenoh.Reliability.RELIABLE)
+    return Publisher(session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                               reliability=zenoh.Reliability.RELIABLE))
+
+
+def query_options() -> dict:
+    """A query goes to every queryable on the key and every reply comes back as it is (no
+    consolidation): the run's detector always gets it, whoever else answers, and the querier
+    picks the reply of the run's detector by its sender id (with Zenoh's defaults, a second
+    queryable could be the only one asked, or its reply the one kept)."""
+    return {"target": zenoh.QueryTarget.ALL, "consolidation": zenoh.ConsolidationMode.NONE}
 
 
 def ns_attachment(capture_ns: int) -> bytes:
-    """The frame's capture time travels with every message about it (the MCAP log time)."""
-    return int(capture_ns).to_bytes(8, "little", signed=True)
+    """The frame's capture time travels with every message about it (the MCAP log time),
+    followed by the sender's id (nothing when this process has none)."""
+    return int(capture_ns).to_bytes(8, "little", signed=True) + _IDENTITY
+
+
+def _attachment_bytes(obj) -> bytes:
+    att = getattr(obj, "attachment", None)
+    return b"" if att is None else att.to_bytes()
 
 
 def attachment_ns(sample) -> int | None:
-    att = getattr(sample, "attachment", None)
-    if att is None:
-        return None
-    b = att.to_bytes()
-    return int.from_bytes(b, "little", signed=True) if len(b) == 8 else None
+    b = _attachment_bytes(sample)
+    return int.from_bytes(b[:8], "little", signed=True) if 8 <= len(b) <= 8 + 64 else None
+
+
+def attachment_sender(sample) -> str:
+    """The sender id a sample, query or reply carries ("" when none)."""
+    b = _attachment_bytes(sample)
+    if not 8 < len(b) <= 8 + 64:
+        return ""
+    return b[8:].decode(errors="replace")
+
+
+def make_guard(bus: BusConfig, service: str, counters: "Counters | None", logger: logging.Logger):
+    """A service's :class:`common.validation.Guard`: the run's senders, each rejected message
+    also counted in the service's ``malformed``."""
+    from common.validation import Guard, Senders
+
+    return Guard(service, Senders(bus.ids), logger,
+                 on_reject=(lambda key, reason: counters.add("malformed")) if counters is not None else None)
 
 
 def payload_bytes(obj) -> bytes:
@@ -125,11 +186,23 @@ class Counters:
 
 
 class StatusTicker:
-    """Publishes a service's :class:`Counters` as a ServiceStatus on ``pub`` at most once a ``period``."""
+    """Publishes a service's :class:`Counters` as a ServiceStatus on ``pub`` at most once a
+    ``period``, and with a ``guard``, its dropped messages per key and reason as JSON on
+    ``health/<service>`` (on ``health_pub``) whenever they changed."""
 
-    def __init__(self, pub, counters: Counters, period: float = 1.0):
+    def __init__(self, pub, counters: Counters, period: float = 1.0, guard=None, health_pub=None):
         self.pub, self.counters, self.period = pub, counters, period
+        self.guard, self.health_pub = guard, health_pub
         self.last = time.monotonic()
+        self._health_sent = None
+
+    def _health(self, **put_kwargs) -> None:
+        if self.guard is None or self.health_pub is None:
+            return
+        data = self.guard.rejects.to_json()
+        if data != self._health_sent:
+            self.health_pub.put(data, **put_kwargs)
+            self._health_sent = data
 
     def tick(self, **put_kwargs) -> bool:
         """Publish if a period has passed since the last time (True then)."""
@@ -137,16 +210,23 @@ class StatusTicker:
         if now - self.last <= self.period:
             return False
         self.pub.put(self.counters.status().SerializeToString(), **put_kwargs)
+        self._health(**put_kwargs)
         self.last = now
         return True
 
+    def final(self, **put_kwargs) -> None:
+        """The last status (``final``) and health."""
+        self._health_sent = None
+        self._health(**put_kwargs)
+        self.pub.put(self.counters.status(final=True).SerializeToString(), **put_kwargs)
+
 
 class Stopper:
-    """Set on SIGINT/SIGTERM; services poll it between messages."""
+    """Set on SIGINT/SIGTERM/SIGHUP; services poll it between messages."""
 
     def __init__(self):
         self.event = threading.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             try:
                 signal.signal(sig, self._handle)
             except ValueError:  # not the main thread (tests)

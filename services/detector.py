@@ -31,7 +31,9 @@ from common.msgs import Template as TemplateMsg
 from common.msgs.convert import msg_to_template, template_to_msg
 from common.part_evidence_queries import PART_KINDS, EvidenceCache, answer_part_query
 from services import options
-from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, ns_attachment, open_session, payload_bytes, publisher
+from common.validation import MAX_CLIENT_CHARS, FrameOrder, Invalid, Rejects, check_query, decode
+from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_sender, make_guard,
+                          ns_attachment, open_session, payload_bytes, publisher)
 from services.frame_images import decode_image
 from services.shm_populate import SegmentPopulator
 
@@ -43,7 +45,12 @@ class DetectorSettings(BaseModel):
 
     max_frames: int = Field(24, ge=1, description="Frames held (oldest dropped): bounds memory. Ten more than the "
                             "tracker's max_lag_frames: frames reach the detector before the tracker learns of them")
-    wait_frame_s: float = Field(1.0, ge=0, description="How long a query waits for its frame's image to arrive")
+    wait_frame_s: float = Field(1.0, ge=0, description="How long a query waits for its frame's image to arrive "
+                                "(meanwhile the detector answers the other queries)")
+    max_clients: int = Field(8, ge=1, le=1024, description="Queriers whose prepared regions are kept (least "
+                             "recently used dropped): each holds up to a frame's pyramid (~10 MB at 1280x720)")
+    max_pending: int = Field(64, ge=1, le=10_000, description="Queries waiting for their frame or template at "
+                             "most (beyond: answered UNKNOWN_FRAME at once)")
 
 
 MIN_FACTOR, MAX_FACTOR = 1.0 / 64.0, 64.0
@@ -74,7 +81,10 @@ class DetectorCore:
         self.settings = settings or DetectorSettings()
         self.frames: OrderedDict[int, tuple[np.ndarray, float]] = OrderedDict()
         self.templates: OrderedDict[int, PolarMatcher] = OrderedDict()
-        self.caches: dict[str, FrameCache] = {}
+        self.caches: OrderedDict[str, FrameCache] = OrderedDict()
+        """Per querier (its sender id and client name), least recently used first, at most ``max_clients``."""
+        self.rejects = Rejects()
+        """Malformed queries per reason (also counted in ``malformed``)."""
         self.observations: OrderedDict[tuple, object] = OrderedDict()
         """(client, frame, factor, template version) -> the frame's observation, kept so the
         template adaptation's PEAK reuses the region the filter's query prepared (as in-process)."""
@@ -93,24 +103,50 @@ class DetectorCore:
         while len(self.templates) > 4:
             self.templates.popitem(last=False)
 
-    def observation(self, q: ScoreQuery, k: float, matcher: PolarMatcher, image: np.ndarray, time_s: float):
+    def _bad(self, reason: str) -> None:
+        self.counters.add("malformed")
+        self.rejects.add("detector/score", reason)
+
+    def cache_for(self, client: str) -> FrameCache:
+        """The querier's region cache (least recently used ones dropped beyond ``max_clients``,
+        with their kept observations)."""
+        cache = self.caches.get(client)
+        if cache is None:
+            cache = self.caches[client] = FrameCache()
+            while len(self.caches) > self.settings.max_clients:
+                gone, _ = self.caches.popitem(last=False)
+                for key in [key for key in self.observations if key[0] == gone]:
+                    del self.observations[key]
+        self.caches.move_to_end(client)
+        return cache
+
+    def observation(self, q: ScoreQuery, k: float, matcher: PolarMatcher, image: np.ndarray, time_s: float,
+                    querier: str = ""):
         """The frame's observation for the query's client, factor and template (kept for later queries)."""
-        key = (q.client, q.frame_index, k, q.template_version)
+        client = f"{querier}/{q.client}"
+        key = (client, q.frame_index, k, q.template_version)
         obs = self.observations.get(key)
         if obs is None:
-            cache = self.caches.setdefault(q.client, FrameCache())
+            cache = self.cache_for(client)
             obs = self.observations[key] = frame_observation(q.frame_index, time_s, image, matcher, cache, k)
             while len(self.observations) > min(OBSERVATIONS_KEPT, self.settings.max_frames):
                 self.observations.popitem(last=False)
         return obs
 
-    def handle(self, q: ScoreQuery) -> tuple[ScoreReply, TemplateMsg | None]:
-        """Answer one query. Never raises: problems become an error status."""
-        rep = ScoreReply(request_id=q.request_id, client=q.client, frame_index=q.frame_index)
+    def handle(self, q: ScoreQuery, querier: str = "") -> tuple[ScoreReply, TemplateMsg | None]:
+        """Answer one query (from sender ``querier``: each querier's regions are its own). Never
+        raises: problems become an error status."""
+        rep = ScoreReply(request_id=q.request_id, client=q.client[:MAX_CLIENT_CHARS], frame_index=q.frame_index)
+        try:
+            check_query(q, PART_KINDS)
+        except Invalid as exc:
+            self._bad(exc.reason)
+            rep.status, rep.error = ScoreReply.BAD_REQUEST, str(exc)
+            return rep, None
         frame = self.frames.get(q.frame_index)
         if frame is None:
             if q.kind in PART_KINDS:
-                self.counters.add("malformed")
+                self._bad("unknown_frame")
             rep.status, rep.error = ScoreReply.UNKNOWN_FRAME, f"frame {q.frame_index} is not held"
             return rep, None
         image, time_s = frame
@@ -127,7 +163,7 @@ class DetectorCore:
             if q.kind in (ScoreQuery.TEMPLATE, ScoreQuery.PEAK) and q.count != 1:
                 raise ValueError(f"a {ScoreQuery.Kind.Name(q.kind)} query has exactly one row")
         except ValueError as exc:
-            self.counters.add("malformed")
+            self._bad("bad_request")
             rep.status, rep.error = ScoreReply.BAD_REQUEST, str(exc)
             return rep, None
         t0 = time.perf_counter()
@@ -151,7 +187,7 @@ class DetectorCore:
                 scores, valid = one_off_grid(time_s, image, matcher, k, hyps)
                 rep.angles = N_ANGLES
             else:
-                obs = self.observation(q, k, matcher, image, time_s)
+                obs = self.observation(q, k, matcher, image, time_s, querier)
                 if q.kind == ScoreQuery.AT:
                     scores, valid = obs.score_at(hyps)
                     rep.angles = 1
@@ -168,7 +204,7 @@ class DetectorCore:
                         rep.pmatrix = np.ascontiguousarray(pm, np.complex64).tobytes()
                         rep.pmatrix_columns = pm.shape[1]
         except ValueError as exc:
-            self.counters.add("malformed")
+            self._bad("bad_request")
             rep.status, rep.error = ScoreReply.BAD_REQUEST, str(exc)
             return rep, None
         except Exception as exc:  # noqa: BLE001 - a service never stops on one bad query
@@ -189,7 +225,7 @@ class DetectorCore:
         try:
             answer_part_query(q, image, self.evidence, rep)
         except ValueError as exc:
-            self.counters.add("malformed")
+            self._bad("bad_request")
             rep.status, rep.error = ScoreReply.BAD_REQUEST, str(exc)
             return rep
         except Exception as exc:  # noqa: BLE001 - a service never stops on one bad query
@@ -218,18 +254,23 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
     warm_up()
     core = DetectorCore(settings)
     c = core.counters
+    guard = make_guard(bus, "detector", c, log)
+    core.rejects = guard.rejects  # the core's malformed queries in the same table
     inbox = Inbox()
     capture_ns: OrderedDict[int, int] = OrderedDict()
+    image_order = FrameOrder()
     with open_session(bus) as session:
         subs = [
             session.declare_subscriber(bus.key("frame/image"), inbox.callback("image", maxlen=settings.max_frames)),
-            session.declare_subscriber(bus.key("template"), inbox.callback("template")),
+            session.declare_subscriber(bus.key("template"), inbox.callback("template", maxlen=64)),
         ]
-        queryable = session.declare_queryable(bus.key("detector/score"), inbox.callback("query"))
+        queryable = session.declare_queryable(bus.key("detector/score"),
+                                              inbox.callback("query", maxlen=4 * settings.max_pending))
         pub_query = publisher(session, bus.key("detector/query"))
         pub_reply = publisher(session, bus.key("detector/reply"))
         pub_template = publisher(session, bus.key("template"))
         pub_status = publisher(session, bus.key("status/detector"))
+        pub_health = publisher(session, bus.key("health/detector"))
         token = session.liveliness().declare_token(bus.key("alive/detector"))
         log.info("detector up on %s", bus.key("detector/score"))
 
@@ -240,12 +281,18 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
             while (s := inbox.pop("image")) is not None:
                 got = True
                 c.add("received")
+                if not guard.accept("frame/image", attachment_sender(s), len(s.payload)):
+                    continue
                 try:
                     idx, img, ns = decode_image(s)
-                except Exception as exc:  # noqa: BLE001
-                    c.add("malformed")
-                    log.warning("malformed frame image: %s", exc)
+                    image_order.check(idx)
+                except Invalid as exc:
+                    guard.reject("frame/image", exc)
                     continue
+                except Exception as exc:  # noqa: BLE001
+                    guard.reject("frame/image", "undecodable", f"{type(exc).__name__}: {exc}")
+                    continue
+                image_order.accept(idx)
                 capture_ns[idx] = ns
                 while len(capture_ns) > settings.max_frames:
                     capture_ns.popitem(last=False)
@@ -255,57 +302,99 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
 
         def drain_templates() -> None:
             while (s := inbox.pop("template")) is not None:
+                m = guard.decode("template", TemplateMsg, payload_bytes(s), attachment_sender(s))
+                if m is None:
+                    continue
                 try:
-                    m = TemplateMsg.FromString(payload_bytes(s))
                     if m.version not in core.templates:
                         core.install_template(m.version, msg_to_template(m))
                 except Exception as exc:  # noqa: BLE001
-                    c.add("malformed")
-                    log.warning("malformed template: %s", exc)
+                    guard.reject("template", "bad_template", f"{type(exc).__name__}: {exc}")
 
-        status = StatusTicker(pub_status, c)
-        while not stopper.stopped:
-            inbox.wait(0.2)
-            drain_images()
-            drain_templates()
-            c.values["dropped"] = inbox.dropped["image"]
-            status.tick()
-            query = inbox.pop("query")
-            if query is None:
-                continue
-            raw = payload_bytes(query)
+        def reply_now(query, payload: bytes, att: bytes | None = None) -> None:
             try:
-                q = ScoreQuery.FromString(raw)
-            except Exception as exc:  # noqa: BLE001
-                c.add("malformed")
-                log.warning("malformed query: %s", exc)
-                err = ScoreReply(status=ScoreReply.BAD_REQUEST, error=f"not a ScoreQuery: {exc}")
-                query.reply(query.key_expr, err.SerializeToString())
-                query.drop()
-                continue
-            deadline = time.monotonic() + settings.wait_frame_s
-            while q.frame_index not in core.frames and time.monotonic() < deadline and not stopper.stopped:
-                inbox.wait(0.01)
-                drain_images()
-            drain_templates()
+                query.reply(query.key_expr, payload, **({"attachment": att} if att is not None else {}))
+            except Exception as exc:  # noqa: BLE001 - the querier may have gone
+                guard.log.warning("reply", f"reply not sent: {exc}")
+            query.drop()
+
+        def take_query(query) -> tuple | None:
+            """A new query: (query, raw, ScoreQuery, sender, deadline) to answer, or None (answered with an error)."""
+            raw = payload_bytes(query)
+            sender = attachment_sender(query)
+            try:
+                guard.senders.check("detector/score/query", sender)
+                q = decode(ScoreQuery, raw, "detector/query")
+            except Invalid as exc:
+                guard.reject("detector/score" if exc.reason != "foreign_sender" else "detector/score/query", exc)
+                err = ScoreReply(status=ScoreReply.BAD_REQUEST, error=str(exc)[:200])
+                reply_now(query, err.SerializeToString(), ns_attachment(time.time_ns()))
+                return None
+            return query, raw, q, sender, time.monotonic() + settings.wait_frame_s
+
+        def ready(item) -> bool:
+            """Whether a waiting query can be answered now (its frame and template are here, its
+            frame is gone for good, or it waited ``wait_frame_s``)."""
+            _query, _raw, q, _sender, deadline = item
+            if time.monotonic() >= deadline or stopper.stopped:
+                return True
+            if q.frame_index not in core.frames:
+                return bool(core.frames) and q.frame_index < next(iter(core.frames))  # dropped already
             # an adapted template travels on the template key: the query asking for it may overtake it
-            while (q.kind != ScoreQuery.TEMPLATE and q.kind not in PART_KINDS and q.template_version not in core.templates
-                   and time.monotonic() < deadline and not stopper.stopped):
-                time.sleep(0.002)
-                drain_templates()
-            reply, new_template = core.handle(q)
+            return q.kind == ScoreQuery.TEMPLATE or q.kind in PART_KINDS or q.template_version in core.templates
+
+        def answer(item) -> None:
+            query, raw, q, sender, _deadline = item
+            reply, new_template = core.handle(q, sender)
             ns = capture_ns.get(q.frame_index, time.time_ns())
             att = ns_attachment(ns)
             payload = reply.SerializeToString()
-            query.reply(query.key_expr, payload, attachment=att)
-            query.drop()
+            reply_now(query, payload, att)
             pub_query.put(raw, attachment=att)
             pub_reply.put(payload, attachment=att)
             if new_template is not None:
                 pub_template.put(new_template.SerializeToString(), attachment=att)
             c.add("published")
+
+        pending: list[tuple] = []
+        """Queries waiting for their frame's image or template, in arrival order: they never hold up
+        the others (a query for an unknown frame had held the detector for a second)."""
+        status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
+        while not stopper.stopped:
+            inbox.wait(0.2 if not pending else 0.002)
+            drain_images()
+            drain_templates()
+            c.values["dropped"] = inbox.dropped["image"]
+            status.tick()
+            while (query := inbox.pop("query")) is not None:
+                item = take_query(query)
+                if item is None:
+                    continue
+                if len(pending) >= settings.max_pending:
+                    q = item[2]
+                    guard.rejects.add("detector/score", "too_many_waiting")
+                    busy = ScoreReply(request_id=q.request_id, client=q.client[:MAX_CLIENT_CHARS],
+                                      frame_index=q.frame_index, status=ScoreReply.UNKNOWN_FRAME,
+                                      error=f"{len(pending)} queries already wait for their frames")
+                    reply_now(query, busy.SerializeToString(), ns_attachment(time.time_ns()))
+                    continue
+                pending.append(item)
+            if pending:
+                drain_images()
+                drain_templates()
+                still = []
+                for item in pending:
+                    if ready(item):
+                        answer(item)
+                        drain_images()  # frames keep coming while queries are answered
+                        drain_templates()
+                    else:
+                        still.append(item)
+                pending = still
+        for item in pending:
+            answer(item)
         c.values["dropped"] = inbox.dropped["image"]
-        pub_status.put(c.status(final=True).SerializeToString())
+        status.final()
         token.undeclare()
         for s in subs:
             s.undeclare()

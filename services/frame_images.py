@@ -10,21 +10,27 @@ from collections import OrderedDict
 import numpy as np
 
 from common.msgs import image_wire
-from services.bus import Inbox, attachment_ns, payload_bytes
+from common.validation import MAX_FRAME_INDEX, Invalid, check_image_size
+from services.bus import Inbox, attachment_ns, attachment_sender, payload_bytes
 
 
 def decode_image(sample) -> tuple[int, np.ndarray, int]:
     """(frame index, uint8 RGB image, capture ns) of a ``frame/image`` sample; ValueError (or a
     protobuf DecodeError) when malformed. The image is a read-only view into the payload's bytes."""
     msg, image = image_wire.decode_image(payload_bytes(sample))
+    check_image_size(image.shape[1], image.shape[0])
     index = int(msg.frame_id)
+    if not 0 <= index <= MAX_FRAME_INDEX:
+        raise Invalid("bad_index", msg.frame_id[:20])
     return index, image, attachment_ns(sample) or msg.timestamp.ToNanoseconds()
 
 
 class FrameImages:
     """Subscribes to ``frame/image`` and hands out a frame's image by index (the last ``keep`` kept)."""
 
-    def __init__(self, session, key: str, counters, keep: int = 8):
+    def __init__(self, session, key: str, counters, keep: int = 8, guard=None):
+        """``guard``: images from another sender than the run's ingest, or too large, are dropped and counted."""
+        self.guard = guard
         self.inbox = Inbox()
         self.sub = session.declare_subscriber(key, self.inbox.callback("image", maxlen=keep))
         self.counters = counters
@@ -33,10 +39,15 @@ class FrameImages:
 
     def _drain(self) -> None:
         while (s := self.inbox.pop("image")) is not None:
+            if self.guard is not None and not self.guard.accept("frame/image", attachment_sender(s), len(s.payload)):
+                continue
             try:
                 index, image, _ = decode_image(s)
-            except Exception:  # noqa: BLE001
-                self.counters.add("malformed")
+            except Exception as exc:  # noqa: BLE001
+                if self.guard is not None:
+                    self.guard.reject("frame/image", "undecodable", f"{type(exc).__name__}: {exc}")
+                else:
+                    self.counters.add("malformed")
                 continue
             self.images[index] = image
             while len(self.images) > self.keep:

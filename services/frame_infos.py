@@ -7,7 +7,8 @@ import logging
 from collections import deque
 
 from common.msgs import FrameInfo, ScoreReply
-from services.bus import Counters, Inbox, Stopper, payload_bytes
+from common.validation import FrameOrder, Guard, Senders, check_frame_info
+from services.bus import Counters, Inbox, Stopper, attachment_sender, payload_bytes
 
 
 class InfoQueue:
@@ -23,20 +24,25 @@ class InfoQueue:
     file paced by its consumers) nothing is skipped.
     """
 
-    def __init__(self, inbox: Inbox, skip_stale: bool, max_lag_frames: int, c: Counters, log: logging.Logger):
+    def __init__(self, inbox: Inbox, skip_stale: bool, max_lag_frames: int, c: Counters, log: logging.Logger,
+                 guard: Guard | None = None):
+        """``guard``: the service's checks; an info from another sender than the run's ingest, or
+        one that fails :func:`common.validation.check_frame_info` (non-finite or backward time,
+        index not increasing, a time jump, a bad homography or size), is dropped and counted."""
         if max_lag_frames < 0:
             raise ValueError(f"max_lag_frames must be >= 0, got {max_lag_frames}")
         self.inbox, self.skip_stale, self.max_lag_frames = inbox, skip_stale, max_lag_frames
         self.c, self.log = c, log
+        self.guard = guard if guard is not None else Guard("tracker", Senders(), log,
+                                                           on_reject=lambda k, r: c.add("malformed"))
+        self.order = FrameOrder()
         self.waiting: deque[FrameInfo] = deque()
 
     def _drain(self) -> None:
         while (sample := self.inbox.pop("info")) is not None:
-            try:
-                info = FrameInfo.FromString(payload_bytes(sample))
-            except Exception as exc:  # noqa: BLE001
-                self.c.add("malformed")
-                self.log.warning("malformed frame info: %s", exc)
+            info = self.guard.decode("frame/info", FrameInfo, payload_bytes(sample), attachment_sender(sample),
+                                     check_frame_info, self.order)
+            if info is None:
                 continue
             self.c.add("received")
             self.waiting.append(info)
@@ -61,13 +67,28 @@ class InfoQueue:
         return self.waiting.popleft(), skipped
 
 
-def first_reply(replies, c: Counters, log: logging.Logger) -> ScoreReply | None:
-    """The first well-formed ScoreReply among a query's replies (malformed ones counted), or None."""
+def _same_query(rep: ScoreReply, q) -> None:
+    from common.validation import Invalid
+
+    if q is not None and (rep.request_id != q.request_id or rep.client != q.client or rep.frame_index != q.frame_index):
+        raise Invalid("not_this_query", f"reply to {rep.client}#{rep.request_id} (frame {rep.frame_index})")
+
+
+def first_reply(replies, c: Counters, log: logging.Logger, guard: Guard | None = None, query=None) -> ScoreReply | None:
+    """The first well-formed ScoreReply among a query's replies from the run's detector, to
+    ``query`` (when given), or None. Malformed ones, replies to another query and (with a
+    ``guard`` holding the run's ids) replies from any other queryable are counted and ignored."""
     for reply in replies:
         if reply.ok is not None:
-            try:
-                return ScoreReply.FromString(reply.ok.payload.to_bytes())
-            except Exception as exc:  # noqa: BLE001
-                c.add("malformed")
-                log.warning("malformed reply: %s", exc)
+            if guard is None:
+                try:
+                    return ScoreReply.FromString(reply.ok.payload.to_bytes())
+                except Exception as exc:  # noqa: BLE001
+                    c.add("malformed")
+                    log.warning("malformed reply: %s", exc)
+                continue
+            rep = guard.decode("detector/score", ScoreReply, reply.ok.payload.to_bytes(),
+                               attachment_sender(reply.ok), _same_query, query)
+            if rep is not None:
+                return rep
     return None

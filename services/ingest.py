@@ -22,7 +22,9 @@ from common.msgs import Estimate, FrameInfo, MultiEstimate, Truth, pack
 from common.msgs.image_wire import encode_image
 from common.sources import Frame, PrerenderedSource, SourceError, open_source
 from services import options
-from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
+from common.validation import check_estimate, check_multi_estimate
+from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_sender, make_guard, ns_attachment,
+                          open_session, payload_bytes, publisher, wait_for_alive)
 from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.ingest")
@@ -123,6 +125,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
     from common.msgs import RunConfig
 
     c = Counters("ingest")
+    guard = make_guard(bus, "ingest", c, log)
     source = open_source(cfg.source, n_frames=cfg.frames)
     if cfg.prerender:
         t0 = time.monotonic()
@@ -134,8 +137,9 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         pub_image = publisher(session, bus.key("frame/image"))
         pub_info = publisher(session, bus.key("frame/info"))
         pub_status = publisher(session, bus.key("status/ingest"))
-        sub = session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate"))
-        sub_multi = session.declare_subscriber(bus.key("track/multi_estimate"), inbox.callback("multi"))
+        pub_health = publisher(session, bus.key("health/ingest"))
+        sub = session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate", maxlen=4096))
+        sub_multi = session.declare_subscriber(bus.key("track/multi_estimate"), inbox.callback("multi", maxlen=4096))
         token = session.liveliness().declare_token(bus.key("alive/ingest"))
         if cfg.wait_for and not wait_for_alive(session, bus, cfg.wait_for, cfg.wait_timeout_s, stopper):
             log.error("services %s not up after %.0f s", cfg.wait_for, cfg.wait_timeout_s)
@@ -149,7 +153,8 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         clock = Clock()  # the real-time clock starts at the first frame
         last_ns = start_ns
         index = -1
-        status = StatusTicker(pub_status, c)
+        last_published = -1  # the newest frame out: no estimate can be about a later one
+        status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
         first = True
         segments = SegmentPopulator(write=True)
 
@@ -160,12 +165,14 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             deadline = time.monotonic() + cfg.consumer_timeout_s
             while done < upto and not stopper.stopped:
                 inbox.wait(0.05)
-                for box, cls in (("estimate", Estimate), ("multi", MultiEstimate)):
+                for box, key, cls, check in (("estimate", "track/estimate", Estimate, check_estimate),
+                                             ("multi", "track/multi_estimate", MultiEstimate, check_multi_estimate)):
                     while (s := inbox.pop(box)) is not None:
-                        try:
-                            done = max(done, int(cls.FromString(payload_bytes(s)).frame_index))
-                        except Exception:  # noqa: BLE001
-                            c.add("malformed")
+                        # pacing only from the run's tracker, about a frame already published (an
+                        # estimate of frame 1e9 had let every frame out unobserved)
+                        e = guard.decode(key, cls, payload_bytes(s), attachment_sender(s), check, last_published)
+                        if e is not None:
+                            done = max(done, int(e.frame_index))
                 if time.monotonic() > deadline:
                     log.warning("no estimate for frame %d after %.0f s: going on", done + 1, cfg.consumer_timeout_s)
                     done = upto
@@ -198,6 +205,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             segments.populate()  # the pool, once the first frame has created it
             pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)
+            last_published = frame.index
             c.add("published")
             status.tick(attachment=att)
             if first and cfg.pace == "realtime" and not source.live:
@@ -212,7 +220,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         eos = FrameInfo(index=index + 1, end_of_stream=True, source=source.name, total_frames=total,
                         capture_ns=last_ns)
         pub_info.put(eos.SerializeToString(), attachment=ns_attachment(last_ns))
-        pub_status.put(c.status(final=True).SerializeToString(), attachment=ns_attachment(last_ns))
+        status.final(attachment=ns_attachment(last_ns))
         log.info("published %d frames", c["published"])
         time.sleep(0.1)
         token.undeclare()

@@ -13,7 +13,9 @@ viewer).
 from __future__ import annotations
 
 import json
+import logging
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -28,6 +30,25 @@ import numpy as np
 from common.settings import TrackerSettings
 
 SERVICES = ("recorder", "detector", "tracker", "viewer", "ingest")
+
+RESTARTED = ("detector", "recorder", "viewer")
+"""Services the launcher restarts when they die mid-run (a bounded number of times); a dead
+router, tracker or ingest ends the run with a failure."""
+
+MAX_RESTARTS = 3
+
+EXIT_DISK_FULL = 3
+"""The recorder's exit status on a full disk (services.recorder): not restarted, the run fails."""
+
+log = logging.getLogger("polartrack.launcher")
+
+
+class Interrupted(KeyboardInterrupt):
+    """The launcher got SIGINT, SIGTERM or SIGHUP: every child is stopped on the way out."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
 
 
 def free_ports(n: int) -> list[int]:
@@ -80,12 +101,26 @@ class RunResult:
     fps: float
     wall_s: float
     returncodes: dict[str, int | None] = field(default_factory=dict)
+    failure: str | None = None
+    """Why the run failed (a service died for good, the router went away, the disk filled), or None."""
+    restarts: list[dict] = field(default_factory=list)
+    """Each restart: the service, its exit status, the frames seen when it died and when it was restarted."""
+    rejected: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
+    """Messages dropped, per receiving service (and ``launcher``), key and reason."""
+    recordings: list[str] = field(default_factory=list)
+    """The MCAP files of the run: ``mcap``, then one more per restart of the recorder."""
+
+    @property
+    def ok(self) -> bool:
+        """No failure, no restart and every service's exit status 0 (or not run)."""
+        return self.failure is None and not self.restarts and all(c in (0, None) for c in self.returncodes.values())
 
     def as_dict(self) -> dict:
         return {"mcap": self.mcap, "rrd": self.rrd, "frames": self.frames, "estimates": self.estimates,
                 "mean_err": None if self.mean_err is None else round(self.mean_err, 3),
                 "frames_lost": self.frames_lost, "fps": round(self.fps, 2), "wall_s": round(self.wall_s, 2),
-                "returncodes": self.returncodes}
+                "returncodes": self.returncodes, "failure": self.failure, "restarts": self.restarts,
+                "rejected": self.rejected, "recordings": self.recordings}
 
 
 NICE = {"viewer": 19}
@@ -111,8 +146,12 @@ class Pipeline:
     def __init__(self, source: str, init_box, settings: TrackerSettings, out_dir: str | Path = "recordings",
                  frames: int | None = None, pace: str = "consumer", viewer: bool = True, stream: str | None = None,
                  name: str | None = None, log_dir: str | Path | None = None, shared_memory: bool = True,
-                 prerender: bool = False, multi=None):
-        """``prerender``: the ingest service reads or renders every frame before publishing the
+                 prerender: bool = False, multi=None, supervise: bool = True, on_restart=None,
+                 recorder_options: dict | None = None):
+        """``supervise``: restart a dead detector, recorder or viewer (at most ``MAX_RESTARTS``
+        times each), end the run on a dead router, tracker or ingest. ``on_restart(pipeline,
+        service)`` is called after each restart (fault-injection tests). ``recorder_options``:
+        more keys of the recorder's settings (``services.recorder.RecorderSettings``). ``prerender``: the ingest service reads or renders every frame before publishing the
         first (see :class:`common.sources.PrerenderedSource`). ``multi``: a
         :class:`common.multitarget_runner.MultiRun` (multi-target filters; ``init_box`` is then None
         and ``settings`` only the single-target defaults)."""
@@ -137,10 +176,21 @@ class Pipeline:
         self.log_dir = Path(log_dir) if log_dir else Path(self.tmp.name)
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs: dict[str, object] = {}
+        self.supervise, self.on_restart = supervise, on_restart
+        self.recorder_options = dict(recorder_options or {})
+        self.ids = {s: secrets.token_hex(8) for s in (*SERVICES, "router")}
+        """The run's sender ids: every service speaks with its own and accepts each key only from
+        the run's services that speak on it (common.validation)."""
+        self.ids_file = Path(self.tmp.name) / "ids.json"
+        self.ids_file.write_text(json.dumps(self.ids))
+        os.chmod(self.ids_file, 0o600)
+        self.parts: dict[str, int] = {}
+        """Restarts so far of each service (a restarted recorder or viewer writes a new file)."""
+        self.recordings = [self.mcap]
 
     # -- processes ------------------------------------------------------------------------
     def command(self, service: str) -> list[str]:
-        base = [sys.executable, "-m", f"services.{service}", "--stream", self.stream]
+        base = [sys.executable, "-m", f"services.{service}", "--stream", self.stream, "--ids", str(self.ids_file)]
         base += ["--shared-memory"] if self.shared_memory else []
         if service == "router":
             return base + ["--mode", "router", "--listen", f"tcp/127.0.0.1:{self.hub_port}"]
@@ -148,9 +198,14 @@ class Pipeline:
         if NICE.get(service):
             base += ["--nice", str(NICE[service])]
         if service == "recorder":
-            return base + ["--out", self.mcap] + (["--compression", "none"] if self.incompressible() else [])
+            out = self.part_path(self.mcap, self.parts.get("recorder", 0))
+            if self.recorder_options:
+                cfg = Path(self.tmp.name) / "recorder.json"
+                cfg.write_text(json.dumps(self.recorder_options))
+                base += ["--config", str(cfg)]
+            return base + ["--out", out] + (["--compression", "none"] if self.incompressible() else [])
         if service == "viewer":
-            return base + ["--out", self.rrd]
+            return base + ["--out", self.part_path(self.rrd, self.parts.get("viewer", 0))]
         if service == "tracker":
             cfg = Path(self.tmp.name) / "tracker.json"
             cfg.write_text(json.dumps({"init_box": None if self.init_box is None else list(self.init_box),
@@ -174,6 +229,14 @@ class Pipeline:
             return base + ["--config", str(cfg)]
         return base
 
+    @staticmethod
+    def part_path(path: str, part: int) -> str:
+        """The file of a service's ``part``-th restart: ``NAME.partK.EXT`` (part 0: ``path``)."""
+        if not part:
+            return path
+        p = Path(path)
+        return str(p.with_name(f"{p.stem}.part{part}{p.suffix}"))
+
     def incompressible(self) -> bool:
         """The synthetic scene's frames carry per-pixel sensor noise: LZ4 chunks of them are 0.0%
         smaller, and compressing them was a third of the recorder's CPU in bench --pipeline.
@@ -184,6 +247,7 @@ class Pipeline:
         log = open(self.log_dir / f"{service}.log", "ab")
         self.logs[service] = log
         env = dict(os.environ, PYTHONUNBUFFERED="1") | {k: os.environ.get(k, v) for k, v in MALLOC_ENV.items()}
+        env["POLARTRACK_PARENT_PID"] = str(os.getpid())  # a service dies with the launcher (services.options)
         cmd = self.command(service)
         profile_dir = os.environ.get("POLARTRACK_PROFILE_DIR")
         if profile_dir:  # developers: a cProfile of every service, written when it exits
@@ -216,10 +280,17 @@ class Pipeline:
             proc.kill()
             proc.wait(5)
 
-    def close_services(self) -> dict[str, int | None]:
+    def close_services(self, timeout: float = 10.0, at_once: bool = False) -> dict[str, int | None]:
+        """Stop the services in order (the recorder last, to record the others' last messages),
+        or with ``at_once`` SIGTERM them all first (a failed run: quicker); SIGKILL after
+        ``timeout`` s."""
+        for service in ("ingest", "tracker", "viewer", "detector", "recorder") if at_once else ():
+            proc = self.procs.get(service)
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
         codes = {}
         for service in ("ingest", "tracker", "viewer", "detector", "recorder"):
-            codes[service] = self.stop(service)
+            codes[service] = self.stop(service, timeout)
         return codes
 
     def close(self) -> dict[str, int | None]:
@@ -264,22 +335,95 @@ class Pipeline:
         p = self.log_dir / f"{service}.log"
         return p.read_text(errors="replace") if p.exists() else ""
 
+    # -- supervision ---------------------------------------------------------------------
+    def _last_line(self, service: str) -> str:
+        lines = [ln for ln in self.log_text(service).splitlines() if ln.strip()]
+        return lines[-1][-300:] if lines else ""
+
+    def _check_services(self, state: dict) -> str | None:
+        """One look at the processes: restart a dead detector, recorder or viewer; a failure
+        (why the run must end now), or None."""
+        now = time.monotonic()
+        router = self.procs.get("router")
+        if router is not None and router.poll() is not None:
+            return f"the router exited with status {router.returncode}"
+        tracker, ingest = self.procs["tracker"], self.procs["ingest"]
+        if ingest.poll() not in (None, 0):
+            return f"ingest exited with status {ingest.returncode}: {self._last_line('ingest')}"
+        if tracker.poll() is not None:
+            if tracker.returncode != 0:
+                return f"the tracker exited with status {tracker.returncode}: {self._last_line('tracker')}"
+            if not state["eos"]:
+                state.setdefault("tracker_gone", now)
+                if now - state["tracker_gone"] > 2.0:  # its last messages may still be on the way
+                    return "the tracker exited before the end of the source"
+        for service in RESTARTED:
+            proc = self.procs.get(service)
+            if proc is None or proc.poll() is None or state.get("closing"):
+                continue
+            if service == "viewer" and proc.returncode == 0 and state["eos"]:
+                continue  # the viewer stops by itself once the stream has ended
+            if service == "recorder" and proc.returncode == EXIT_DISK_FULL:
+                return f"recorder: {self._last_line('recorder').split('error: ', 1)[-1]}"
+            if not self.supervise:
+                continue
+            n = self.parts.get(service, 0)
+            if n >= MAX_RESTARTS:
+                return f"the {service} died {n + 1} times (last status {proc.returncode})"
+            event = {"service": service, "status": proc.returncode, "died_after_frames": state["frames"]}
+            self.parts[service] = n + 1
+            self.start(service)
+            if service == "recorder":
+                self.recordings.append(self.part_path(self.mcap, n + 1))
+            event["restarted_after_frames"] = state["frames"]
+            self.restart_log.append(event)
+            log.warning("%s exited with status %s after %d frames: restarted (%d of %d)", service, proc.returncode,
+                        state["frames"], n + 1, MAX_RESTARTS)
+            if self.on_restart is not None:
+                self.on_restart(self, service)
+        return None
+
     # -- a run ----------------------------------------------------------------------------
     def run(self, progress: bool = True, timeout: float | None = None, on_estimate=None) -> RunResult:
         """Start everything, wait for the end of the source, stop everything.
 
         ``on_estimate(pipeline, estimate)`` is called for every estimate (fault-injection tests
-        use it to kill and restart services mid-run)."""
+        use it to kill and restart services mid-run). Every message is checked before use
+        (:mod:`common.validation`): from the run's own services, decodable, within its caps,
+        finite; the bad ones are counted in ``rejected``. On SIGINT, SIGTERM or SIGHUP every
+        child is stopped and the shared memory removed, then :class:`Interrupted` is raised."""
+        import threading
+
+        previous = {}
+        if threading.current_thread() is threading.main_thread():
+            def on_signal(signum, frame):
+                for sig in previous:  # once: the clean-up is not interrupted again
+                    signal.signal(sig, signal.SIG_IGN)
+                raise Interrupted(signum)
+
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                previous[sig] = signal.signal(sig, on_signal)
+        try:
+            return self._run(progress, timeout, on_estimate)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def _run(self, progress: bool, timeout: float | None, on_estimate) -> RunResult:
         from tqdm import tqdm
 
         from common.msgs import Estimate, FrameInfo, MultiEstimate
         from common.multitarget_runner import msg_positions, people_truth_parts
-        from services.bus import Inbox, payload_bytes
+        from common.validation import (FrameOrder, Guard, Invalid, Senders, check_estimate, check_frame_info,
+                                       check_multi_estimate, check_status, parse_rejects)
+        from services.bus import Inbox, attachment_sender, payload_bytes
 
         self.open()
         bus = router_config(self.hub_port, self.stream)
         session = self.session
         inbox = Inbox()
+        guard = Guard("launcher", Senders(self.ids), log)
+        order = FrameOrder()
         truths: dict[int, tuple[float, float, bool]] = {}
         people: dict[int, np.ndarray] = {}  # multi-target: true part centres of the body model per frame
         errors: dict[int, float] = {}
@@ -294,11 +438,33 @@ class Pipeline:
         self.latencies: list[float] = []
         self.step_ms: list[float] = []
         self.skipped = 0
+        self.restart_log: list[dict] = []
+        self.health: dict[str, dict[str, dict[str, int]]] = {}
+        state = {"eos": False, "frames": 0}
+        failure = None
+
+        def take_statuses() -> None:
+            while (s := inbox.pop("status")) is not None:
+                key = bus.suffix(str(s.key_expr))
+                st = guard.decode(key, ServiceStatus, payload_bytes(s), attachment_sender(s), check_status, key)
+                if st is not None:
+                    self.statuses[st.service] = st
+                    self.status_log.append((time.monotonic(), infos_seen, st))
+            while (s := inbox.pop("health")) is not None:
+                key = bus.suffix(str(s.key_expr))
+                if not guard.accept(key, attachment_sender(s)):
+                    continue
+                try:
+                    self.health[key.split("/", 1)[1]] = parse_rejects(payload_bytes(s))
+                except Invalid as exc:
+                    guard.reject(key, exc)
+
         try:
-            subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate")),
-                    session.declare_subscriber(bus.key("track/multi_estimate"), inbox.callback("multi")),
-                    session.declare_subscriber(bus.key("frame/info"), inbox.callback("info")),
-                    session.declare_subscriber(bus.key("status/*"), inbox.callback("status"))]
+            subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate", maxlen=100_000)),
+                    session.declare_subscriber(bus.key("track/multi_estimate"), inbox.callback("multi", maxlen=100_000)),
+                    session.declare_subscriber(bus.key("frame/info"), inbox.callback("info", maxlen=100_000)),
+                    session.declare_subscriber(bus.key("status/*"), inbox.callback("status", maxlen=10_000)),
+                    session.declare_subscriber(bus.key("health/*"), inbox.callback("health", maxlen=10_000))]
             for s in [s for s in self.services if s != "ingest"]:
                 self.start(s)
             self.start("ingest")
@@ -308,8 +474,13 @@ class Pipeline:
             while not done:
                 inbox.wait(0.2)
                 while (s := inbox.pop("info")) is not None:
-                    info = FrameInfo.FromString(payload_bytes(s))
+                    info = guard.decode("frame/info", FrameInfo, payload_bytes(s), attachment_sender(s),
+                                        check_frame_info, order)
+                    if info is None:
+                        continue
                     infos_seen += not info.end_of_stream
+                    state["frames"] = infos_seen
+                    state["eos"] = state["eos"] or info.end_of_stream
                     if info.total_frames and total is None:
                         total = info.total_frames
                         bar.total = total
@@ -321,12 +492,11 @@ class Pipeline:
                         gt = people_truth_parts(info, self.multi.config.n_parts)
                         if gt is not None:
                             people[info.index] = gt
-                while (s := inbox.pop("status")) is not None:
-                    st = ServiceStatus.FromString(payload_bytes(s))
-                    self.statuses[st.service] = st
-                    self.status_log.append((time.monotonic(), infos_seen, st))
+                take_statuses()
                 while (s := inbox.pop("estimate")) is not None:
-                    e = Estimate.FromString(payload_bytes(s))
+                    e = guard.decode("track/estimate", Estimate, payload_bytes(s), attachment_sender(s), check_estimate)
+                    if e is None:
+                        continue
                     self.latencies.append(e.latency_ms)
                     self.step_ms.append(e.step_ms)
                     self.skipped = max(self.skipped, e.frames_skipped)
@@ -342,7 +512,10 @@ class Pipeline:
                     if on_estimate is not None:
                         on_estimate(self, e)
                 while (s := inbox.pop("multi")) is not None:
-                    e = MultiEstimate.FromString(payload_bytes(s))
+                    e = guard.decode("track/multi_estimate", MultiEstimate, payload_bytes(s), attachment_sender(s),
+                                     check_multi_estimate)
+                    if e is None:
+                        continue
                     self.skipped = max(self.skipped, e.frames_skipped)
                     self.latencies.append(e.latency_ms)
                     self.step_ms.append(e.step_ms)
@@ -354,7 +527,10 @@ class Pipeline:
                         del people[k]
                     err = float("nan")
                     if gt is not None and len(gt) == e.targets:  # targets in the scene's person order
-                        err = float(np.mean(np.linalg.norm(msg_positions(e) - gt, axis=-1)))
+                        try:
+                            err = float(np.mean(np.linalg.norm(msg_positions(e) - gt, axis=-1)))
+                        except ValueError:
+                            guard.reject("track/multi_estimate", "bad_positions")
                     errors[e.frame_index] = err
                     bar.update(1)
                     if on_estimate is not None:
@@ -363,27 +539,32 @@ class Pipeline:
                 ingest = self.procs["ingest"]
                 if tracker.poll() is not None and ingest.poll() is not None:
                     done = True
-                if ingest.poll() not in (None, 0) or tracker.poll() not in (None, 0):
+                failure = self._check_services(state)
+                if failure is not None:
+                    log.error("%s: ending the run", failure)
                     done = True
                 if timeout is not None and time.monotonic() - t0 > timeout:
+                    failure = failure or f"timed out after {timeout:.0f} s"
                     done = True
             bar.close()
         finally:
-            codes = self.close_services()
-            while (s := inbox.pop("status")) is not None:
-                st = ServiceStatus.FromString(payload_bytes(s))
-                self.statuses[st.service] = st
-                self.status_log.append((time.monotonic(), infos_seen, st))
-            for s in subs:
+            state["closing"] = True
+            codes = self.close_services(timeout=3.0 if failure else 10.0, at_once=failure is not None)
+            take_statuses()
+            for s in subs if "subs" in locals() else []:
                 s.undeclare()
             self.close()
         n = len(errors)
         errs = np.array([e for e in errors.values() if np.isfinite(e)])
         fps = (n - 1) / (last_t - first_t) if n > 1 and last_t > first_t else 0.0
+        rejected = {k: v for k, v in self.health.items() if v}
+        if guard.rejects.snapshot():
+            rejected["launcher"] = guard.rejects.snapshot()
         return RunResult(mcap=self.mcap, rrd=self.rrd, frames=total or n, estimates=n,
                          mean_err=float(errs.mean()) if errs.size else None,
                          frames_lost=int(np.sum(errs > 20.0)) if errs.size else None, fps=fps,
-                         wall_s=time.monotonic() - t0, returncodes=codes)
+                         wall_s=time.monotonic() - t0, returncodes=codes, failure=failure,
+                         restarts=list(self.restart_log), rejected=rejected, recordings=list(self.recordings))
 
 
 def versions() -> dict[str, str]:

@@ -20,7 +20,8 @@ from common.msgs import ScoreQuery, ScoreReply
 from common.multitarget import InitError
 from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
-from services.bus import BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, ns_attachment, open_session, publisher
+from services.bus import (BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, make_guard, ns_attachment,
+                          open_session, publisher, query_options)
 from services.frame_infos import InfoQueue, first_reply
 
 log = logging.getLogger("polartrack.tracker")
@@ -30,14 +31,16 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
     """``cfg``: :class:`services.tracker.TrackerServiceSettings` with ``multi`` set."""
     run = MultiRun.from_json(cfg.multi)
     c = Counters("tracker")
+    guard = make_guard(bus, "tracker", c, log)
     inbox = Inbox()
     ids = itertools.count(1)
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
-        infos = InfoQueue(inbox, cfg.skip_stale, cfg.lag_frames(), c, log)
-        querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
+        infos = InfoQueue(inbox, cfg.skip_stale, cfg.lag_frames(), c, log, guard)
+        querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s, **query_options())
         pub_est = publisher(session, bus.key("track/multi_estimate"))
         pub_status = publisher(session, bus.key("status/tracker"))
+        pub_health = publisher(session, bus.key("health/tracker"))
         token = session.liveliness().declare_token(bus.key("alive/tracker"))
         presence = Presence(session, bus)
         if not presence.wait("detector", cfg.detector_wait_s, stopper):
@@ -46,10 +49,11 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
         def ask(q: ScoreQuery) -> ScoreReply | None:
             if "detector" not in presence:
                 return None
-            return first_reply(querier.get(payload=q.SerializeToString()), c, log)
+            return first_reply(querier.get(payload=q.SerializeToString(), attachment=ns_attachment(time.time_ns())),
+                               c, log, guard, q)
 
         tracker = None
-        status = StatusTicker(pub_status, c)
+        status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
         log.info("tracker up (%s, %d targets, %d parts, %d particles)", run.method, len(run.boxes),
                  run.config.n_parts, run.config.n_particles)
         skipped = 0
@@ -82,11 +86,16 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
                 c.add("errors")
                 log.error("cannot start on frame %d: %s", info.index, exc)
                 continue
+            except Exception as exc:  # noqa: BLE001 - nothing a message holds stops the service
+                c.add("errors")
+                guard.rejects.add("step", type(exc).__name__)
+                guard.log.warning("step", f"frame {info.index}: step failed ({type(exc).__name__}: {exc}): no estimate")
+                continue
             msg.frames_skipped = skipped
             pub_est.put(msg.SerializeToString(), attachment=ns_attachment(info.capture_ns))
             c.add("published")
             status.tick()
-        pub_status.put(c.status(final=True).SerializeToString())
+        status.final()
         presence.close()
         token.undeclare()
         sub.undeclare()

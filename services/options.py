@@ -29,6 +29,8 @@ def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--shared-memory", dest="shared_memory", action="store_const", const=True,
                    help="Zenoh shared memory for the frame images (the launcher's processes use it)")
+    p.add_argument("--ids", metavar="FILE.json", help="the run's sender ids ({service: id}; the launcher writes it): "
+                   "this service speaks with its own and accepts each key only from the run's services")
     p.add_argument("--log-level", default="INFO", help="logging level")
     p.add_argument("--threads", type=int, default=1, metavar="N",
                    help="OpenCV threads of this process (0: its default, a thread per core)")
@@ -75,6 +77,13 @@ def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]
         v = getattr(args, k, None)
         if v is not None:
             bus_data[k] = v
+    ids_file = getattr(args, "ids", None)
+    if ids_file:
+        try:
+            with open(ids_file, "rb") as fh:
+                bus_data["ids"] = json.load(fh)
+        except (OSError, json.JSONDecodeError) as exc:
+            fail(service, f"--ids {ids_file}: {exc}")
     svc_data = dict(data)
     for k in keys:
         v = getattr(args, k, None)
@@ -87,4 +96,27 @@ def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"]) or "config"
         fail(service, f"{where}: {first['msg']} (got {first.get('input')!r})")
+    from services.bus import set_identity
+
+    set_identity(bus.ids.get(service, ""))
+    die_with_parent()
     return bus, cfg
+
+
+def die_with_parent() -> None:
+    """A service the launcher started (``POLARTRACK_PARENT_PID``) gets SIGTERM when the launcher
+    dies, even by SIGKILL (Linux ``PR_SET_PDEATHSIG``), and exits at once if it is already gone:
+    no orphan keeps running."""
+    parent = os.environ.get("POLARTRACK_PARENT_PID")
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != int(parent):
+        raise SystemExit(1)

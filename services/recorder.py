@@ -13,8 +13,11 @@ Run: ``python -m services.recorder --help``.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
+import os
+import sys
 import time
 from pathlib import Path
 from typing import Literal
@@ -27,7 +30,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from common.msgs import RunConfig, message_class
 from services import options
 from services.direct_file import DirectFile
-from services.bus import BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, open_session, payload_bytes, publisher
+from common.msgs import TOPICS, FrameInfo, ServiceStatus
+from common.validation import FrameOrder, Invalid, check_frame_info, check_image_size, check_status, decode, max_bytes
+from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
+                          open_session, payload_bytes, publisher)
 from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.recorder")
@@ -40,18 +46,46 @@ class RecorderSettings(BaseModel):
     compression: Literal["lz4", "none"] = Field("lz4", description="chunk compression")
     chunk_size: int = Field(256 << 10, ge=1 << 16, description="bytes per chunk (a chunk is the unit lost on SIGKILL); "
                             "a frame larger than this closes its chunk at once")
+    simulate_disk_bytes: int | None = Field(None, ge=0, description="testing: the disk holds this many bytes of the "
+                                            "file, and writes beyond raise ENOSPC as a full disk would")
+
+
+class DiskFull(Exception):
+    """The recording's disk is full (ENOSPC): the recorder stops, keeping the file as of its last flush."""
+
+
+EXIT_DISK_FULL = 3
+"""The recorder's exit status on a full disk (the launcher ends the run: a restart would not help)."""
+
+
+class SmallDiskFile(DirectFile):
+    """A :class:`DirectFile` on a simulated disk of ``limit`` bytes: ENOSPC beyond."""
+
+    def __init__(self, path: str, limit: int):
+        super().__init__(path)
+        self.limit = limit
+
+    def _pwrite(self, length: int) -> None:
+        if self._base + length > self.limit:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), self.path)
+        super()._pwrite(length)
 
 
 class McapSink:
     """MCAP writing with one schema per message class and one channel per topic."""
 
-    def __init__(self, path: str, compression: str = "lz4", chunk_size: int = 256 << 10):
+    def __init__(self, path: str, compression: str = "lz4", chunk_size: int = 256 << 10,
+                 disk_bytes: int | None = None):
         """``chunk_size``: small chunks are much cheaper for large frames. The writer collects a
         chunk in a growing buffer, so a 2.7 MB frame landing in a 4 MiB chunk behind other
         messages is copied again as the buffer grows: 11.9 ms of CPU a frame against 1.9 ms with
         256 KiB chunks (1280x720 RGB frames plus a frame's queries, replies and estimates)."""
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        self.fh = DirectFile(path)  # raw video around the page cache (see services.direct_file)
+        # raw video around the page cache (see services.direct_file)
+        self.fh = DirectFile(path) if disk_bytes is None else SmallDiskFile(path, disk_bytes)
+        self.flushed = 0
+        """Bytes of the file as of the last successful flush (it ends on a whole record there)."""
+        self.flushed_messages = 0
         comp = CompressionType.LZ4 if compression == "lz4" else CompressionType.NONE
         self.writer = Writer(self.fh, chunk_size=chunk_size, compression=comp)
         self.writer.start(profile="protobuf", library="polartrack")
@@ -60,6 +94,7 @@ class McapSink:
         self.counts: dict[str, int] = {}
         self.sequence = 0
         self.metadata_written: set[str] = set()
+        self.flush()  # the header on disk at once: even a file cut at once is an MCAP file's start
 
     def channel(self, topic: str) -> int:
         ch = self.channels.get(topic)
@@ -92,10 +127,26 @@ class McapSink:
 
     def flush(self) -> None:
         self.fh.flush()
+        self.flushed = self.fh.tell()
+        self.flushed_messages = self.sequence
 
     def close(self) -> None:
         self.writer.finish()
         self.fh.close()
+
+    def abort(self) -> None:
+        """After a failed write: cut the file back to its last flush (whole records: a reader
+        gets every message up to there) and close it without writing more."""
+        fh = self.fh
+        try:
+            os.ftruncate(fh._fd, self.flushed)
+        except OSError:
+            pass
+        try:
+            os.close(fh._fd)
+        except OSError:
+            pass
+        fh.closed = True
 
 
 def run_metadata(raw: bytes) -> dict[str, str]:
@@ -104,55 +155,139 @@ def run_metadata(raw: bytes) -> dict[str, str]:
     return {k: v if isinstance(v, str) else json.dumps(v) for k, v in d.items()}
 
 
+def image_index(data: bytes) -> int:
+    """The frame index of a ``frame/image`` payload, its geometry checked (the pixels not copied); Invalid."""
+    from common.msgs.image_wire import decode_image
+
+    try:
+        msg, image = decode_image(data)
+        index = int(msg.frame_id)
+    except Exception as exc:  # noqa: BLE001 - protobuf and the wire reader raise several types
+        raise Invalid("undecodable", f"not a frame image: {type(exc).__name__}") from None
+    check_image_size(image.shape[1], image.shape[0])
+    return index
+
+
+def declared(topic: str, services) -> bool:
+    """A topic of the run: the message topics, and ``status/<service>`` of the run's services
+    (any service when the run's ids are not known)."""
+    if topic in TOPICS:
+        return True
+    if topic.startswith("status/"):
+        name = topic[len("status/"):]
+        return (name in services) if services else ("/" not in name and 0 < len(name) <= 32)
+    return False
+
+
 def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
+    """Records the run's declared topics from the run's own senders (others are counted per key
+    and reason and dropped); every message but the frame images is decoded and checked first.
+    On a full disk (ENOSPC) it stops: the file is cut back to its last flush and
+    :class:`DiskFull` is raised."""
     c = Counters("recorder")
+    guard = make_guard(bus, "recorder", c, log)
     inbox = Inbox()
-    sink = McapSink(cfg.out, cfg.compression, cfg.chunk_size)
+    sink = McapSink(cfg.out, cfg.compression, cfg.chunk_size, cfg.simulate_disk_bytes)
     prefix = bus.key("")
+    services = set(bus.ids)
+    info_order, image_order = FrameOrder(), FrameOrder()
+    full: list[str] = []
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("**"), inbox.callback("all"))
         pub_status = publisher(session, bus.key("status/recorder"))
+        pub_health = publisher(session, bus.key("health/recorder"))
         token = session.liveliness().declare_token(bus.key("alive/recorder"))
         log.info("recording %s** to %s", prefix, cfg.out)
-        status = StatusTicker(pub_status, c)
+        status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
+
+        def valid(topic: str, data: bytes, sender: str) -> bool:
+            if topic.startswith("health/"):
+                return False  # the services' reports to the launcher, not part of the run
+            if not declared(topic, services):
+                guard.reject("(undeclared)" if len(topic) > 64 else topic, "undeclared_topic")
+                return False
+            try:
+                guard.senders.check(topic, sender)
+                if topic == "frame/image":
+                    if len(data) > max_bytes(topic):
+                        raise Invalid("too_large", f"{len(data)} bytes")
+                    index = image_index(data)  # no copy of the pixels
+                    image_order.check(index)
+                    image_order.accept(index)
+                elif topic == "frame/info":
+                    check_frame_info(decode(FrameInfo, data, topic), info_order)
+                elif topic.startswith("status/"):
+                    check_status(decode(ServiceStatus, data, topic), topic)
+                else:
+                    decode(TOPICS[topic], data, topic)
+            except Invalid as exc:
+                guard.reject(topic, exc)
+                return False
+            return True
 
         def write_one(sample) -> str:
             key = str(sample.key_expr)
             topic = key[len(prefix):] if key.startswith(prefix) else key
             data = payload_bytes(sample)
+            c.add("received")
+            if full or not valid(topic, data, attachment_sender(sample)):
+                return ""
             now = time.time_ns()
             log_time = attachment_ns(sample)
-            sink.write(topic, data, log_time if log_time is not None else now, now)
-            c.add("received")
+            try:
+                sink.write(topic, data, log_time if log_time is not None else now, now)
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC:
+                    raise
+                full.append(f"disk full (ENOSPC) writing {cfg.out}")
+                return ""
             if topic == "run/config":
                 try:
                     sink.metadata("run", run_metadata(data))
                 except Exception as exc:  # noqa: BLE001
-                    c.add("malformed")
-                    log.warning("malformed run config: %s", exc)
+                    guard.reject(topic, "bad_run_config", str(exc)[:200])
             return topic
 
         segments = SegmentPopulator()
-        while not stopper.stopped:
+        while not stopper.stopped and not full:
             if inbox.wait(0.2):
                 images = False
-                while (s := inbox.pop("all")) is not None:
+                while (s := inbox.pop("all")) is not None and not full:
                     images |= write_one(s) == "frame/image"
                 if images:
                     segments.populate()  # the frames' shared memory, mapped with the first frame
             if status.tick():  # and the file flushed as often
-                sink.flush()
-        # a short grace period for messages in flight, then close the file properly
-        deadline = time.monotonic() + 0.3
-        while time.monotonic() < deadline:
-            while (s := inbox.pop("all")) is not None:
-                write_one(s)
-            time.sleep(0.02)
-        pub_status.put(c.status(final=True).SerializeToString())
+                try:
+                    sink.flush()
+                except OSError as exc:
+                    if exc.errno != errno.ENOSPC:
+                        raise
+                    full.append(f"disk full (ENOSPC) flushing {cfg.out}")
+        if not full:
+            # a short grace period for messages in flight, then close the file properly
+            deadline = time.monotonic() + 0.3
+            while time.monotonic() < deadline and not full:
+                while (s := inbox.pop("all")) is not None and not full:
+                    write_one(s)
+                time.sleep(0.02)
+        if full:
+            c.add("errors")
+        status.final()
         token.undeclare()
         sub.undeclare()
-    sink.metadata("recorder", {"messages": sum(sink.counts.values()), **{f"count:{k}": v for k, v in sink.counts.items()}})
-    sink.close()
+    if not full:
+        try:
+            sink.metadata("recorder", {"messages": sum(sink.counts.values()),
+                                       **{f"count:{k}": v for k, v in sink.counts.items()}})
+            sink.close()
+        except OSError as exc:
+            if exc.errno != errno.ENOSPC:
+                raise
+            full.append(f"disk full (ENOSPC) closing {cfg.out}")
+    if full:
+        sink.abort()
+        raise DiskFull(f"{full[0]}: stopped; the file keeps its first {sink.flushed_messages} messages "
+                       f"({sink.flushed} bytes, up to the last flush)")
     log.info("wrote %d messages to %s", sum(sink.counts.values()), cfg.out)
     return c
 
@@ -167,7 +302,12 @@ def main(argv: list[str] | None = None) -> int:
     from services.bus import setup_logging
 
     setup_logging("recorder", args.log_level)
-    serve(bus, cfg, Stopper())
+    try:
+        serve(bus, cfg, Stopper())
+    except DiskFull as exc:
+        log.error("%s", exc)
+        print(f"recorder: error: {exc}", file=sys.stderr, flush=True)
+        return EXIT_DISK_FULL
     return 0
 
 

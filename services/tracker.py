@@ -28,7 +28,8 @@ from common.runner import InitError, Tracker, stabilises
 from common.settings import TrackerSettings
 from common.tracking.observation import ObservationUnavailable
 from services import options
-from services.bus import BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, ns_attachment, open_session, publisher
+from services.bus import (BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, make_guard, ns_attachment,
+                          open_session, publisher, query_options)
 from services.frame_infos import InfoQueue, first_reply
 from services.frame_images import FrameImages
 
@@ -90,20 +91,22 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
         raise ValueError("the tracker needs init_box (single target) or multi (multi-target)")
     warm_up()
     c = Counters("tracker")
+    guard = make_guard(bus, "tracker", c, log)
     inbox = Inbox()
     st = cfg.settings
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
-        infos = InfoQueue(inbox, cfg.skip_stale, cfg.lag_frames(), c, log)
+        infos = InfoQueue(inbox, cfg.skip_stale, cfg.lag_frames(), c, log, guard)
         # subscribed before any frame can arrive; dropped on the first frame if the source's
         # homography makes stabilisation unnecessary ("auto")
-        images = (FrameImages(session, bus.key("frame/image"), c, keep=cfg.lag_frames() + 3)
+        images = (FrameImages(session, bus.key("frame/image"), c, keep=cfg.lag_frames() + 3, guard=guard)
                   if st.stabilise != "off" else None)
-        querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s)
+        querier = session.declare_querier(bus.key("detector/score"), timeout=cfg.query_timeout_s, **query_options())
         pub_est = publisher(session, bus.key("track/estimate"))
         pub_cloud = publisher(session, bus.key("track/particles"))
         pub_status = publisher(session, bus.key("status/tracker"))
         pub_template = publisher(session, bus.key("template"))
+        pub_health = publisher(session, bus.key("health/tracker"))
         token = session.liveliness().declare_token(bus.key("alive/tracker"))
         presence = Presence(session, bus)
         if not presence.wait("detector", cfg.detector_wait_s, stopper):
@@ -115,9 +118,11 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
             if "detector" not in presence:
                 return None  # detector down: no observation now, not after a timeout
             payload = q.SerializeToString()
-            replies = (session.get(bus.key("detector/score"), payload=payload, timeout=cfg.template_timeout_s)
-                       if q.kind == ScoreQuery.TEMPLATE else querier.get(payload=payload))
-            return first_reply(replies, c, log)
+            att = ns_attachment(time.time_ns())  # the sender's id: the detector answers the run's tracker only
+            replies = (session.get(bus.key("detector/score"), payload=payload, timeout=cfg.template_timeout_s,
+                                   attachment=att, **query_options())
+                       if q.kind == ScoreQuery.TEMPLATE else querier.get(payload=payload, attachment=att))
+            return first_reply(replies, c, log, guard, q)
 
         def ask(q: ScoreQuery) -> ScoreReply | None:
             nonlocal template_bytes
@@ -138,7 +143,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
         detector = QueryDetector(ask, cfg.client, publish_template)
         tracker = None
         skipped = 0
-        status = StatusTicker(pub_status, c)
+        status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
         log.info("tracker up (%s)", st.filter)
         while not stopper.stopped:
             info, n_skipped = infos.next(stopper)
@@ -169,7 +174,17 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
                     c.add("errors")
                     log.error("cannot start on frame %d: %s", info.index, exc)
                     continue
-            state = tracker.step(frame)
+                except Exception as exc:  # noqa: BLE001 - nothing a message holds stops the service
+                    c.add("errors")
+                    guard.log.warning("start", f"cannot start on frame {info.index}: {type(exc).__name__}: {exc}")
+                    continue
+            try:
+                state = tracker.step(frame)
+            except Exception as exc:  # noqa: BLE001 - nothing a message holds stops the service
+                c.add("errors")
+                guard.rejects.add("step", type(exc).__name__)
+                guard.log.warning("step", f"frame {info.index}: step failed ({type(exc).__name__}: {exc}): no estimate")
+                continue
             step_ms = 1e3 * (time.perf_counter() - t0)
             est = estimate_msg(info.index, info.capture_ns, state, st.filter, skipped, step_ms)
             pub_est.put(est.SerializeToString(), attachment=att)
@@ -177,7 +192,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
                 pub_cloud.put(cloud.SerializeToString(), attachment=att)
             c.add("published")
             status.tick()
-        pub_status.put(c.status(final=True).SerializeToString())
+        status.final()
         if images is not None:
             images.close()
         presence.close()

@@ -21,7 +21,10 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from services import options
-from services.bus import BusConfig, Counters, StatusTicker, Stopper, attachment_ns, ns_attachment, open_session, payload_bytes, publisher
+from common.msgs import FrameInfo
+from common.validation import FrameOrder, Invalid, check_frame_info, decode
+from services.bus import (BusConfig, Counters, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
+                          ns_attachment, open_session, payload_bytes, publisher)
 
 log = logging.getLogger("polartrack.viewer")
 
@@ -82,6 +85,8 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
     from services.rerun_log import RunLogger, display_available
 
     c = Counters("viewer")
+    guard = make_guard(bus, "viewer", c, log)
+    info_order = FrameOrder()
     spawn = cfg.spawn and display_available()
     if cfg.spawn and not spawn:
         log.warning("--spawn: no display available; writing %s only", cfg.out)
@@ -94,13 +99,14 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
             subs = [(topic, burst, session.declare_subscriber(bus.key(topic), handler(topic, cap)))
                     for topic, (cap, burst) in SUBSCRIPTIONS.items()]
             pub_status = publisher(session, bus.key("status/viewer"))
+            pub_health = publisher(session, bus.key("health/viewer"))
             token = session.liveliness().declare_token(bus.key("alive/viewer"))
             log.info("logging polartrack/%s/** to %s", bus.stream, cfg.out)
             last_msg = time.monotonic()
             last_ns = None
             last_image_ns = None
             image_interval_ns = int(1e9 / cfg.max_image_hz) if cfg.max_image_hz > 0 else 0
-            status = StatusTicker(pub_status, c)
+            status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
             while not stopper.stopped:
                 got = 0
                 for sub_topic, burst, sub in subs:
@@ -111,6 +117,15 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
                         got += sub_topic != "status/*"  # the services' periodic statuses are not activity
                         c.add("received")
                         topic = bus.suffix(str(sample.key_expr))
+                        data = payload_bytes(sample)
+                        if not guard.accept(topic, attachment_sender(sample), len(data)):
+                            continue  # another sender than the run's service on this key, or too large
+                        if topic == "frame/info":
+                            try:  # a forged end of stream or a replayed frame would end or confuse the run
+                                check_frame_info(decode(FrameInfo, data, topic), info_order)
+                            except Invalid as exc:
+                                guard.reject(topic, exc)
+                                continue
                         ns = attachment_ns(sample)
                         last_ns = ns if ns is not None else last_ns
                         if topic == "frame/image" and ns is not None:
@@ -120,9 +135,13 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
                             last_image_ns = ns
                         eos_before = logger.stats["end_of_stream"]
                         malformed_before = logger.stats["malformed"]
-                        logger.log_message(topic, payload_bytes(sample), ns)
+                        try:
+                            logger.log_message(topic, data, ns)
+                        except Exception as exc:  # noqa: BLE001 - nothing a message holds stops the viewer
+                            guard.reject(topic, "not_logged", f"{type(exc).__name__}: {exc}")
+                            continue
                         if logger.stats["malformed"] != malformed_before:
-                            c.add("malformed")
+                            guard.reject(topic, "malformed")
                         if logger.stats["end_of_stream"] != eos_before and eos_at is None:
                             eos_at = time.monotonic()
                             log.info("end of stream; stopping after %.1f s of quiet", cfg.quiet_s)
@@ -134,9 +153,7 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
                     break
                 else:
                     stopper.wait(0.005)
-            status = c.status(final=True)
-            pub_status.put(status.SerializeToString(),
-                           **({"attachment": ns_attachment(last_ns)} if last_ns is not None else {}))
+            status.final(**({"attachment": ns_attachment(last_ns)} if last_ns is not None else {}))
             token.undeclare()
             for _topic, _burst, sub in subs:
                 sub.undeclare()
@@ -169,6 +186,12 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging("viewer", args.log_level)
     try:
         serve(bus, cfg, Stopper(), nice=args.nice)
+        # done and written: a stop request now (the launcher's, as the viewer exits by itself
+        # after the end of stream) must not turn a clean exit into death by signal
+        import signal
+
+        for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
+            signal.signal(sig, signal.SIG_IGN)
     except zenoh.ZError as exc:
         log.error("cannot join the bus: %s", str(exc).split(" at /")[0])
         return 1

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from common.commands.common_args import apply_overrides
 
@@ -77,16 +78,18 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
 
 
 def _launch(args, source_spec: str, init, settings, multi) -> int:
-    from services.launcher import Pipeline
+    from services.launcher import Interrupted, Pipeline
 
     with Pipeline(source_spec, init, settings, out_dir=args.out_dir, frames=args.frames, pace=args.pace,
                   viewer=not args.no_viewer, multi=multi) as pipe:
         try:
             result = pipe.run(progress=not args.no_progress)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
             pipe.close()
-            print("interrupted: services stopped", flush=True)
-            return 130
+            signum = exc.signum if isinstance(exc, Interrupted) else 2
+            print(f"interrupted ({'SIG' + str(exc) if isinstance(exc, Interrupted) else 'SIGINT'}): services stopped",
+                  flush=True)
+            return 128 + signum
         failed = {s: c for s, c in result.returncodes.items() if c not in (0, None)}
         logs = {s: pipe.log_text(s)[-2000:] for s in failed}
     out = result.as_dict()
@@ -94,16 +97,26 @@ def _launch(args, source_spec: str, init, settings, multi) -> int:
         print(json.dumps(out))
     else:
         print(f"recording: {result.mcap}")
+        for part in result.recordings[1:]:
+            print(f"           {part}   (after a restart of the recorder)")
         if result.rrd:
             print(f"rerun:     {result.rrd}   (open with: rerun {result.rrd})")
         err = "n/a" if result.mean_err is None else f"{result.mean_err:.2f} px"
         if multi is not None:
             err += " (mean part-centre error)"
-        print(f"{result.estimates} of {result.frames} frames tracked at {result.fps:.1f} fps; mean error {err}; "
+        verb = "tracked" if result.ok else "estimated (the run FAILED, see below)"
+        print(f"{result.estimates} of {result.frames} frames {verb} at {result.fps:.1f} fps; mean error {err}; "
               f"frames lost (error > 20 px): {result.frames_lost if result.frames_lost is not None else 'n/a'}")
+        for service, table in result.rejected.items():
+            print(f"dropped by {service}: " + ", ".join(f"{k} {r} {n}" for k, v in table.items() for r, n in v.items()))
+    for r in result.restarts:
+        print(f"service {r['service']} exited with status {r['status']} after {r['died_after_frames']} frames: restarted",
+              file=sys.stderr)
     for s, code in failed.items():
-        print(f"service {s} exited with status {code}; last log lines:\n{logs[s]}")
-    return 1 if failed else 0
+        print(f"service {s} exited with status {code}; last log lines:\n{logs[s]}", file=sys.stderr)
+    if result.failure:
+        print(f"run failed: {result.failure}", file=sys.stderr)
+    return 0 if result.ok else 1
 
 
 def run(args: argparse.Namespace) -> int:
