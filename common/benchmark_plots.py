@@ -70,6 +70,7 @@ def plot_errors_over_time(errors: dict[str, np.ndarray], visible: np.ndarray, pa
         ax.plot(frames, e, lw=1.2, color=f"C{i}", label=name)
     ax.axhline(20, color="k", lw=0.5, ls="--")
     ax.set_yscale("symlog", linthresh=10)
+    ax.set_ylim(bottom=0)
     ax.set_xlabel("frame")
     ax.set_ylabel("centre error (px)")
     ax.legend(loc="upper left")
