@@ -16,7 +16,7 @@ from common.cli import main
 from common.evaluation import precision_curve
 from common.sources import SyntheticSource
 
-from imagegen import REPO
+from imagegen import DATA, REPO
 
 MODELS = REPO.parent / "shared" / "models" / "nanotrack-v2"
 NAN = (np.nan,) * 4
@@ -188,5 +188,31 @@ def test_peers_subprocess(sequence, tmp_path, capsys, monkeypatch):
     assert res["trackers"] == ["polartrack", "csrt", "kcf", "nanotrack"] and res["opencv"]
     for name in ("csrt", "kcf", "nanotrack"):
         r = res["sequences"][0]["trackers"][name]
-        assert r["visible_frames"] == 5 and r["fps"] > 0
+        assert r["visible_frames"] == 5 and r["fps"] > 0 and r["failures"] >= 0
         assert r["precision20"] == 1.0  # five frames of a car moving a few pixels: every peer holds it
+
+
+@pytest.mark.skipif(not (DATA / "uav123-car16").is_dir(), reason="no ../shared/data/uav123-car16")
+def test_uav123_boxes_count_from_one(tmp_path, capsys):
+    """On a real UAV123 folder the trackers start from the first box shifted to 0-based pixels
+    (the file says 556,253,22,16) and score against the shifted truth."""
+    assert main(["benchmark", str(DATA / "uav123-car16"), "--json", "--frames", "4", "--out", str(tmp_path),
+                 "--no-progress"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)["sequences"]
+    assert row["init_box"] == [555.0, 252.0, 22.0, 16.0] and row["frames"] == 4
+    assert row["trackers"]["polartrack"]["precision20"] == 1.0
+
+
+def test_peers_failure_is_one_line(sequence, tmp_path, capsys, monkeypatch):
+    """A peers' run that fails (here a stand-in script) ends the benchmark with its last stderr line."""
+    import sys
+
+    from common.commands import benchmark
+
+    script = tmp_path / "fail.py"
+    script.write_text("import sys\nprint('progress 3', file=sys.stderr)\nprint('Traceback ...', file=sys.stderr)\n"
+                      "print('RuntimeError: no model', file=sys.stderr)\nsys.exit(1)\n")
+    monkeypatch.setattr(benchmark, "peer_command", lambda args: [sys.executable, str(script)])
+    err = one_line_error(capsys, ["benchmark", str(sequence), "--peers", "--frames", "2", "--out", str(tmp_path),
+                                  "--no-progress"])
+    assert err.endswith("--peers on " + str(sequence) + ": RuntimeError: no model")

@@ -12,7 +12,8 @@ frames where the target is visible (NaN ground truth left out, as OTB and UAV123
 precision20, auc50 (precision over 0-50 px), success_auc (OTB: fraction of frames with IoU above
 0, 0.05, ..., 1.0, averaged; 20/21 at best), mean_err (px), frames_lost (frames whose box does
 not overlap the target, IoU = 0) and fps (frames over the time in the tracker's start and steps,
-reading the images not included); the mean weighs every sequence the same. Writes under --out
+reading the images not included); the mean weighs every sequence the same. A peer's
+``failures`` counts the frames where OpenCV reported failure (it keeps its last box there). Writes under --out
 precision.png and success.png (one curve per tracker, AUC in the legend), errors-SEQ.png per
 sequence (centre error per frame) and benchmark.json (what --json prints).
 """
@@ -169,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
             except (InitError, SourceError) as exc:
                 raise UsageError(f"{spec}: {exc}") from None
         runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 else float("nan"))}
+        failures = {}  # a peer's frames where OpenCV reported failure (it kept its last box there)
         if prefix is not None:
             with tqdm(total=len(source) * len(PEERS), unit="frame", desc=f"{source.name} peers", disable=quiet,
                       file=sys.stderr, leave=False) as bar:
@@ -177,11 +179,14 @@ def run(args: argparse.Namespace) -> int:
             for name in PEERS:
                 r = peers["trackers"][name]
                 runs[name] = (np.asarray(r["boxes"], float), r["fps"])
+                failures[name] = r["failures"]
         scores = {name: score_boxes(b, truth) for name, (b, _) in runs.items()}
         results = {}
         for name, sc in scores.items():
             fps = runs[name][1]
             results[name] = {**sc.as_dict(), "fps": None if fps is None else round(float(fps), 1)}
+            if name in failures:
+                results[name]["failures"] = failures[name]
             curves["precision"].setdefault(name, []).append(sc.precision)
             curves["success"].setdefault(name, []).append(sc.success)
         plot = out_dir / f"errors-{source.name}.png"
