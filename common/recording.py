@@ -44,7 +44,40 @@ class Recording:
         return [cls.FromString(d) for _, d in self.messages.get(topic, [])]
 
 
-def read_recording(path: str) -> Recording:
+def run_metadata(raw: bytes) -> dict[str, str]:
+    """The MCAP ``run`` metadata of a RunConfig message (what the recorder writes)."""
+    from google.protobuf.json_format import MessageToDict
+
+    from common.msgs import RunConfig
+
+    cfg = RunConfig.FromString(raw)
+    d = MessageToDict(cfg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
+    return {k: v if isinstance(v, str) else json.dumps(v) for k, v in d.items()}
+
+
+def _read_cut(path: str) -> tuple[dict, dict, int]:
+    """(metadata, messages, records read) of a file cut short (a recorder killed, a full disk):
+    every record up to the last complete one, read in file order."""
+    from mcap.reader import NonSeekingReader
+
+    meta: dict[str, dict[str, str]] = {}
+    msgs: dict[str, list] = defaultdict(list)
+    n = 0
+    with open(path, "rb") as fh:
+        reader = NonSeekingReader(fh, validate_crcs=True)
+        try:
+            for _schema, channel, message in reader.iter_messages(log_time_order=False):
+                msgs[channel.topic].append((message.log_time, message.data))
+                n += 1
+        except Exception:  # noqa: BLE001 - the cut: a partial record or chunk, or no footer
+            pass
+    return meta, dict(msgs), n
+
+
+def read_recording(path: str, warn=None) -> Recording:
+    """The whole recording; a file cut short (no footer: a recorder killed or out of disk) is
+    read up to its last complete record, with one warning line through ``warn`` (default:
+    stderr), and no run metadata when it was cut before the end."""
     try:
         with open(path, "rb") as fh:
             reader = make_reader(fh)
@@ -55,7 +88,24 @@ def read_recording(path: str) -> Recording:
     except FileNotFoundError:
         raise RecordingError(f"{path}: no such file") from None
     except Exception as exc:  # noqa: BLE001 - the mcap reader raises many types on bad files
-        raise RecordingError(f"{path}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None
+        try:
+            meta, msgs, n = _read_cut(path)
+        except Exception:  # noqa: BLE001
+            n = 0
+        if n == 0:
+            raise RecordingError(f"{path}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None
+        if meta == {} and "run/config" in msgs:
+            try:
+                meta["run"] = run_metadata(msgs["run/config"][0][1])
+            except Exception:  # noqa: BLE001 - a garbled config: no run metadata
+                pass
+        message = f"warning: {path} is cut short ({type(exc).__name__}): read {n} messages up to the last complete record"
+        if warn is None:
+            import sys
+
+            print(message, file=sys.stderr)
+        else:
+            warn(message)
     return Recording(path, meta, dict(msgs))
 
 

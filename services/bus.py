@@ -219,6 +219,7 @@ class StatusTicker:
         self._health_sent = None
         self._health(**put_kwargs)
         self.pub.put(self.counters.status(final=True).SerializeToString(), **put_kwargs)
+        time.sleep(0.05)  # on their way before the session closes
 
 
 class Stopper:

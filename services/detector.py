@@ -133,6 +133,35 @@ class DetectorCore:
                 self.observations.popitem(last=False)
         return obs
 
+    @staticmethod
+    def parse(q: ScoreQuery) -> tuple[np.ndarray, float]:
+        """(hypotheses, factor) of an AT / GRID / TEMPLATE / PEAK query; ValueError when malformed."""
+        width = WIDTHS.get(q.kind)
+        if width is None:
+            raise ValueError(f"unknown query kind {q.kind}")
+        hyps = unpack(q.hypotheses, np.float64, (q.count, width))
+        if not np.all(np.isfinite(hyps)):
+            raise ValueError("hypotheses contain NaN or infinite coordinates")
+        k = query_factor(q)
+        if q.kind in (ScoreQuery.TEMPLATE, ScoreQuery.PEAK) and q.count != 1:
+            raise ValueError(f"a {ScoreQuery.Kind.Name(q.kind)} query has exactly one row")
+        return hyps, k
+
+    def precheck(self, q: ScoreQuery) -> ScoreReply | None:
+        """The error reply to a query no frame can make answerable (caps, sizes, NaNs, kind,
+        factor), counted; None when it may wait for its frame."""
+        try:
+            check_query(q, PART_KINDS)
+            if q.kind not in PART_KINDS:
+                self.parse(q)
+            elif not np.all(np.isfinite(unpack(q.hypotheses, np.float64, (q.count, 4)))):
+                raise ValueError("boxes contain NaN or infinite values")
+        except ValueError as exc:
+            self._bad(exc.reason if isinstance(exc, Invalid) else "bad_request")
+            return ScoreReply(request_id=q.request_id, client=q.client[:MAX_CLIENT_CHARS], frame_index=q.frame_index,
+                              status=ScoreReply.BAD_REQUEST, error=str(exc)[:300])
+        return None
+
     def handle(self, q: ScoreQuery, querier: str = "") -> tuple[ScoreReply, TemplateMsg | None]:
         """Answer one query (from sender ``querier``: each querier's regions are its own). Never
         raises: problems become an error status."""
@@ -152,16 +181,8 @@ class DetectorCore:
         image, time_s = frame
         if q.kind in PART_KINDS:
             return self.handle_part(q, image, rep), None
-        width = WIDTHS.get(q.kind)
         try:
-            if width is None:
-                raise ValueError(f"unknown query kind {q.kind}")
-            hyps = unpack(q.hypotheses, np.float64, (q.count, width))
-            if not np.all(np.isfinite(hyps)):
-                raise ValueError("hypotheses contain NaN or infinite coordinates")
-            k = query_factor(q)
-            if q.kind in (ScoreQuery.TEMPLATE, ScoreQuery.PEAK) and q.count != 1:
-                raise ValueError(f"a {ScoreQuery.Kind.Name(q.kind)} query has exactly one row")
+            hyps, k = self.parse(q)
         except ValueError as exc:
             self._bad("bad_request")
             rep.status, rep.error = ScoreReply.BAD_REQUEST, str(exc)
@@ -330,6 +351,10 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
                 err = ScoreReply(status=ScoreReply.BAD_REQUEST, error=str(exc)[:200])
                 reply_now(query, err.SerializeToString(), ns_attachment(time.time_ns()))
                 return None
+            bad = core.precheck(q)
+            if bad is not None:  # never answerable: at once, and not recorded
+                reply_now(query, bad.SerializeToString(), ns_attachment(time.time_ns()))
+                return None
             return query, raw, q, sender, time.monotonic() + settings.wait_frame_s
 
         def ready(item) -> bool:
@@ -350,8 +375,9 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
             att = ns_attachment(ns)
             payload = reply.SerializeToString()
             reply_now(query, payload, att)
-            pub_query.put(raw, attachment=att)
-            pub_reply.put(payload, attachment=att)
+            if reply.status != ScoreReply.BAD_REQUEST:  # the recording holds the queries a replay would ask
+                pub_query.put(raw, attachment=att)
+                pub_reply.put(payload, attachment=att)
             if new_template is not None:
                 pub_template.put(new_template.SerializeToString(), attachment=att)
             c.add("published")

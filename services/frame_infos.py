@@ -92,3 +92,44 @@ def first_reply(replies, c: Counters, log: logging.Logger, guard: Guard | None =
             if rep is not None:
                 return rep
     return None
+
+
+class ReplyPicker:
+    """:func:`first_reply` for a querier that also counts the replies that come after the one it
+    took: a second queryable on the key answers too (a query goes to every queryable), and its
+    replies, faster or slower than the detector's, are each counted as ``foreign_sender`` on
+    ``detector/score`` (the slower ones at the next query, from the reply channels kept)."""
+
+    def __init__(self, c: Counters, log: logging.Logger, guard: Guard, keep: int = 8):
+        self.c, self.log, self.guard, self.keep = c, log, guard, keep
+        self.previous: deque = deque(maxlen=keep)
+
+    def _late(self, reply) -> None:
+        if reply.ok is None:
+            return
+        try:
+            self.guard.senders.check("detector/score", attachment_sender(reply.ok))
+        except Exception as exc:  # noqa: BLE001 - Invalid: another queryable's reply
+            self.guard.reject("detector/score", exc)
+
+    def drain(self) -> None:
+        """Count the replies that have come since, on the channels of the last queries."""
+        still = deque(maxlen=self.keep)
+        for handler in self.previous:
+            while True:
+                try:
+                    reply = handler.try_recv()
+                except Exception:  # noqa: BLE001 - closed: every reply is in
+                    break
+                if reply is None:
+                    still.append(handler)
+                    break
+                self._late(reply)
+        self.previous = still
+
+    def first(self, replies, query) -> ScoreReply | None:
+        self.drain()
+        rep = first_reply(replies, self.c, self.log, self.guard, query)
+        if hasattr(replies, "try_recv"):
+            self.previous.append(replies)
+        return rep

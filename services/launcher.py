@@ -494,7 +494,8 @@ class Pipeline:
                             people[info.index] = gt
                 take_statuses()
                 while (s := inbox.pop("estimate")) is not None:
-                    e = guard.decode("track/estimate", Estimate, payload_bytes(s), attachment_sender(s), check_estimate)
+                    e = guard.decode("track/estimate", Estimate, payload_bytes(s), attachment_sender(s), check_estimate,
+                                     order.index)  # about a frame seen
                     if e is None:
                         continue
                     self.latencies.append(e.latency_ms)
@@ -513,7 +514,7 @@ class Pipeline:
                         on_estimate(self, e)
                 while (s := inbox.pop("multi")) is not None:
                     e = guard.decode("track/multi_estimate", MultiEstimate, payload_bytes(s), attachment_sender(s),
-                                     check_multi_estimate)
+                                     check_multi_estimate, order.index)
                     if e is None:
                         continue
                     self.skipped = max(self.skipped, e.frames_skipped)
@@ -550,6 +551,7 @@ class Pipeline:
         finally:
             state["closing"] = True
             codes = self.close_services(timeout=3.0 if failure else 10.0, at_once=failure is not None)
+            time.sleep(0.2)  # the last statuses and health reports still on the way
             take_statuses()
             for s in subs if "subs" in locals() else []:
                 s.undeclare()

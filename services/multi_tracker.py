@@ -22,7 +22,7 @@ from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
 from services.bus import (BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, make_guard, ns_attachment,
                           open_session, publisher, query_options)
-from services.frame_infos import InfoQueue, first_reply
+from services.frame_infos import InfoQueue, ReplyPicker
 
 log = logging.getLogger("polartrack.tracker")
 
@@ -32,6 +32,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
     run = MultiRun.from_json(cfg.multi)
     c = Counters("tracker")
     guard = make_guard(bus, "tracker", c, log)
+    picker = ReplyPicker(c, log, guard)
     inbox = Inbox()
     ids = itertools.count(1)
     with open_session(bus) as session:
@@ -49,8 +50,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
         def ask(q: ScoreQuery) -> ScoreReply | None:
             if "detector" not in presence:
                 return None
-            return first_reply(querier.get(payload=q.SerializeToString(), attachment=ns_attachment(time.time_ns())),
-                               c, log, guard, q)
+            return picker.first(querier.get(payload=q.SerializeToString(), attachment=ns_attachment(time.time_ns())), q)
 
         tracker = None
         status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
@@ -95,6 +95,7 @@ def serve_multi(bus: BusConfig, cfg, stopper: Stopper) -> Counters:
             pub_est.put(msg.SerializeToString(), attachment=ns_attachment(info.capture_ns))
             c.add("published")
             status.tick()
+        picker.drain()
         status.final()
         presence.close()
         token.undeclare()

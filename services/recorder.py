@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import errno
-import json
 import logging
 import os
 import sys
@@ -22,16 +21,16 @@ import time
 from pathlib import Path
 from typing import Literal
 
-from google.protobuf.json_format import MessageToDict
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.msgs import RunConfig, message_class
+from common.msgs import message_class
+from common.recording import run_metadata
 from services import options
 from services.direct_file import DirectFile
-from common.msgs import TOPICS, FrameInfo, ServiceStatus
-from common.validation import FrameOrder, Invalid, check_frame_info, check_image_size, check_status, decode, max_bytes
+from common.msgs import TOPICS, Estimate, FrameInfo, ServiceStatus
+from common.validation import FrameOrder, Invalid, check_estimate, check_frame_info, check_image_size, check_status, decode, max_bytes
 from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
                           open_session, payload_bytes, publisher)
 from services.shm_populate import SegmentPopulator
@@ -86,6 +85,10 @@ class McapSink:
         self.flushed = 0
         """Bytes of the file as of the last successful flush (it ends on a whole record there)."""
         self.flushed_messages = 0
+        from collections import deque
+
+        self.boundaries: deque[tuple[int, int]] = deque([(0, 0)], maxlen=4096)
+        """(file length, messages) where the file ended on a whole record, the latest ones."""
         comp = CompressionType.LZ4 if compression == "lz4" else CompressionType.NONE
         self.writer = Writer(self.fh, chunk_size=chunk_size, compression=comp)
         self.writer.start(profile="protobuf", library="polartrack")
@@ -119,6 +122,9 @@ class McapSink:
         self.writer.add_message(self.channel(topic), log_time=log_time, data=data, publish_time=publish_time,
                                 sequence=self.sequence)
         self.counts[topic] = self.counts.get(topic, 0) + 1
+        end = self.fh.tell()
+        if end != self.boundaries[-1][0]:  # the writer emitted a chunk: the file ends on a whole record
+            self.boundaries.append((end, self.sequence))
 
     def metadata(self, name: str, data: dict[str, str]) -> None:
         if name not in self.metadata_written:
@@ -135,9 +141,12 @@ class McapSink:
         self.fh.close()
 
     def abort(self) -> None:
-        """After a failed write: cut the file back to its last flush (whole records: a reader
-        gets every message up to there) and close it without writing more."""
+        """After a failed write: cut the file back to the last whole record that reached the disk
+        (a reader gets every message up to there) and close it without writing more."""
         fh = self.fh
+        on_disk = fh._base  # every byte before the stage was written
+        cut = max([(self.flushed, self.flushed_messages)] + [b for b in self.boundaries if b[0] <= on_disk])
+        self.flushed, self.flushed_messages = cut
         try:
             os.ftruncate(fh._fd, self.flushed)
         except OSError:
@@ -147,12 +156,6 @@ class McapSink:
         except OSError:
             pass
         fh.closed = True
-
-
-def run_metadata(raw: bytes) -> dict[str, str]:
-    cfg = RunConfig.FromString(raw)
-    d = MessageToDict(cfg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
-    return {k: v if isinstance(v, str) else json.dumps(v) for k, v in d.items()}
 
 
 def image_index(data: bytes) -> int:
@@ -216,6 +219,8 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                     image_order.accept(index)
                 elif topic == "frame/info":
                     check_frame_info(decode(FrameInfo, data, topic), info_order)
+                elif topic == "track/estimate":  # about a frame recorded already, finite
+                    check_estimate(decode(Estimate, data, topic), info_order.index)
                 elif topic.startswith("status/"):
                     check_status(decode(ServiceStatus, data, topic), topic)
                 else:
@@ -287,7 +292,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
     if full:
         sink.abort()
         raise DiskFull(f"{full[0]}: stopped; the file keeps its first {sink.flushed_messages} messages "
-                       f"({sink.flushed} bytes, up to the last flush)")
+                       f"({sink.flushed} bytes, every whole record that reached the disk)")
     log.info("wrote %d messages to %s", sum(sink.counts.values()), cfg.out)
     return c
 

@@ -30,7 +30,7 @@ from common.tracking.observation import ObservationUnavailable
 from services import options
 from services.bus import (BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, make_guard, ns_attachment,
                           open_session, publisher, query_options)
-from services.frame_infos import InfoQueue, first_reply
+from services.frame_infos import InfoQueue, ReplyPicker
 from services.frame_images import FrameImages
 
 log = logging.getLogger("polartrack.tracker")
@@ -92,6 +92,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
     warm_up()
     c = Counters("tracker")
     guard = make_guard(bus, "tracker", c, log)
+    picker = ReplyPicker(c, log, guard)
     inbox = Inbox()
     st = cfg.settings
     with open_session(bus) as session:
@@ -122,7 +123,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
             replies = (session.get(bus.key("detector/score"), payload=payload, timeout=cfg.template_timeout_s,
                                    attachment=att, **query_options())
                        if q.kind == ScoreQuery.TEMPLATE else querier.get(payload=payload, attachment=att))
-            return first_reply(replies, c, log, guard, q)
+            return picker.first(replies, q)
 
         def ask(q: ScoreQuery) -> ScoreReply | None:
             nonlocal template_bytes
@@ -192,6 +193,7 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
                 pub_cloud.put(cloud.SerializeToString(), attachment=att)
             c.add("published")
             status.tick()
+        picker.drain()
         status.final()
         if images is not None:
             images.close()
