@@ -174,9 +174,13 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
             lat = np.asarray(pipe.latencies, float)
             step = np.asarray(pipe.step_ms, float)
             skipped = pipe.skipped
-        rec = read_recording(result.mcap)
-        recorded_images = len(rec.messages.get("frame/image", []))
-        query_ms = np.array([r.score_ms for r in rec.decoded("detector/reply") if r.count > 1], float)
+            failure = pipeline_failure(result, pipe)
+        if failure is None:
+            rec = read_recording(result.mcap)
+            recorded_images = len(rec.messages.get("frame/image", []))
+            query_ms = np.array([r.score_ms for r in rec.decoded("detector/reply") if r.count > 1], float)
+        else:
+            recorded_images, query_ms = 0, np.array([], float)
     published = statuses.get("ingest").published if "ingest" in statuses else frames
     cpu_s = {k: v.cpu_s for k, v in sorted(statuses.items())} | {"launcher": launcher_s}
     return {
@@ -197,8 +201,27 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
         "steady_cpu_ms_per_frame": {k: v[1] for k, v in steady.items()},
         "mean_err": None if result.mean_err is None else round(result.mean_err, 2),
         "returncodes": result.returncodes,
+        "failure": failure, "restarts": result.restarts, "rejected": result.rejected,
     } | meets_targets(result.fps, lat, published - recorded_images,
                       int(skipped) + (int(statuses["ingest"].dropped) if "ingest" in statuses else 0))
+
+
+def pipeline_failure(result, pipe) -> str | None:
+    """Why a bench run measured nothing worth reporting (one line), or None: the run failed, a
+    service was restarted or exited non-zero, or no estimate came (ingest exiting 2 on a
+    prerender too large for memory had printed fps 0 with exit 0)."""
+    if result.failure:
+        return result.failure
+    bad = {s: c for s, c in result.returncodes.items() if c not in (0, None)}
+    if bad:
+        s, c = next(iter(bad.items()))
+        lines = [ln for ln in pipe.log_text(s).splitlines() if ln.strip()]
+        return f"{s} exited with status {c}: {lines[-1][-300:] if lines else 'no log'}"
+    if result.restarts:
+        return f"{result.restarts[0]['service']} died and was restarted: the figures are not steady-state"
+    if result.estimates == 0:
+        return "no estimate came"
+    return None
 
 
 TARGETS = {"fps": 30.0, "frames_dropped": 0, "latency_ms_p50": 50.0, "frames_missing_from_recording": 0}
@@ -241,6 +264,11 @@ def run(args: argparse.Namespace) -> int:
         result = measure_pipeline(args.seconds, args.particles, viewer=not args.no_viewer, seed=args.seed,
                                   pace=args.pace, prerender=not args.render_live)
         print(json.dumps(result) if args.json else "\n".join(f"{k:<30} {v}" for k, v in result.items()))
+        if result.get("failure"):
+            import sys
+
+            print(f"bench --pipeline: error: {result['failure']}", file=sys.stderr)
+            return 1
         return 0
     result = measure(repeats=args.repeats, seed=args.seed)
     if args.json:
