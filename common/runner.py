@@ -20,11 +20,12 @@ from common.adaptation import TemplateAdapter
 from common.detector import Template
 from common.detector.client import DetectorClient, LocalDetector
 from common.detector.layout import SUPPORT_RADIUS_PX
+from common.reacquire import Detection, Reacquirer
 from common.scale import ScaleTracker
 from common.settings import TrackerSettings
 from common.sources import Frame
 from common.stabilise import CameraMotionEstimator
-from common.tracking import RBPF, SIR, InitialState, TrackState, WindowedML, wrap_degrees
+from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world
 from common.tracking.motion import NearConstantVelocity
 from common.tracking.observation import ObservationUnavailable
@@ -83,6 +84,16 @@ def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, 
     return WindowedML(settings.ml, initial)
 
 
+def _background_beta(settings: TrackerSettings) -> tuple[float, float]:
+    """(a, b) of the likelihood's Beta for scores where there is no target (the synthetic fit by default)."""
+    from common.settings import SYNTHETIC_BETA
+
+    lik = getattr(getattr(settings, settings.filter, None), "likelihood", None)
+    if isinstance(lik, BetaRatioLikelihood):
+        return (float(lik.a0), float(lik.b0))
+    return (SYNTHETIC_BETA["a0"], SYNTHETIC_BETA["b0"])
+
+
 def _rotation_deg(j: np.ndarray) -> float:
     """Rotation (degrees, anticlockwise as displayed, image y down) of a 2x2 linear map."""
     return float(np.rad2deg(np.arctan2(j[0, 1] - j[1, 0], j[0, 0] + j[1, 1])))
@@ -116,6 +127,7 @@ class Tracker:
     stabiliser: CameraMotionEstimator | None = None
     scale: ScaleTracker | None = None
     adapter: TemplateAdapter | None = None
+    reacquirer: Reacquirer | None = None
     last_state: TrackState | None = None
     homography: np.ndarray | None = None
     """World -> image homography of the latest frame stepped (None: identity)."""
@@ -158,6 +170,8 @@ class Tracker:
         tracker._local = local
         tracker._first_h = h0
         tracker._box_size = (float(w), float(h))
+        if settings.reacquisition.enabled and hasattr(tracker.filter, "restart"):
+            tracker.reacquirer = Reacquirer(settings.reacquisition, _background_beta(settings), first.size)
         return tracker
 
     def observation(self, frame: Frame, homography=_SOURCE, factor: float | None = None):
@@ -199,6 +213,7 @@ class Tracker:
         if self.frames > 0:
             self.scale.predict(self.homography, h, world, frame.time)
         self.factor = self.scale.factor()
+        det = self._search(frame, h)
         obs = self._obs = self.observation(frame, h)
         state = self.filter.step(frame.time, obs)
         self.frames += 1
@@ -207,7 +222,12 @@ class Tracker:
             self.scale.maybe_search(frame.time, lambda k, xy: self.detector.scale_grid(frame, k, xy), state)
         except ObservationUnavailable:
             pass  # a remote detector did not answer: no correction this time
-        state = replace(state, size=(self._box_size[0] * self.scale.s, self._box_size[1] * self.scale.s))
+        state = replace(state, size=(self._box_size[0] * self.scale.s, self._box_size[1] * self.scale.s),
+                        reacquired=det is not None)
+        if self.reacquirer is not None:
+            if det is not None:
+                self.reacquirer.relocked(det)
+            self.reacquirer.observe(frame.time, state, self.scale.s)
         self.last_state = state
         self.homography = None if h is None else np.asarray(h, float)
         if self._local:
@@ -220,6 +240,34 @@ class Tracker:
         self._world_xy = image_to_world(self.homography, img)
         self._adapt(frame, state)
         return state
+
+    def _search(self, frame: Frame, h: np.ndarray | None) -> Detection | None:
+        """While the target is lost, search this frame (:mod:`common.reacquire`); on a confident
+        detection restart the filter there, at the detection's scale and angle."""
+        r = self.reacquirer
+        if r is None or not r.lost:
+            return None
+        try:
+            det = r.search(frame.time, lambda k, xy: self.detector.scale_grid(frame, k, xy), self.scale)
+        except ObservationUnavailable:
+            return None  # a remote detector did not answer: search again next frame
+        if det is None:
+            return None
+        self.scale.s = det.scale
+        self.scale.rate = 0.0
+        self.scale._prev_search = None
+        self.factor = self.scale.factor()
+        xy = np.array([det.x, det.y])
+        d = float(abs(np.linalg.det(homography_jacobian(h, image_to_world(h, xy))))) if h is not None else 1.0
+        px_per_world = np.sqrt(d) if d > 0 and np.isfinite(d) else 1.0
+        length_world = self.scale.target_length_px / px_per_world
+        cfg, st = self.settings.reacquisition, self.settings
+        vel_std = st.init_vel_std if st.init_vel_lengths is None else st.init_vel_lengths * length_world
+        initial = InitialState.from_image_point(
+            (det.x, det.y), h, time=None, theta=det.theta_deg, p_visible=1.0,
+            pos_std=cfg.grid_lengths * length_world / 4, vel_std=vel_std, theta_std=3.75)
+        self.filter.restart(initial)
+        return det
 
     def _reanchor(self, m: np.ndarray) -> None:
         """Move the particles to a new world frame: positions through ``m`` (old world -> new

@@ -62,8 +62,9 @@ class ScaleSettings(BaseModel):
         "is about this long in the matched image (the footprint the P-matrix layout was designed for: a "
         "~50 px car). None: never upsample.")
     max_upsample: float = Field(4.0, ge=1, description="Largest upsampling factor u.")
-    min_factor: float = Field(0.25, gt=0, le=1, description="Smallest overall resampling factor k (a target "
-                              "grown 4x beyond u is matched at 1/4 resolution, no less).")
+    min_factor: float = Field(1 / 16, gt=0, le=1, description="Smallest overall resampling factor k (a target "
+                              "grown 16x beyond u is matched at 1/16 resolution, no less): with the upsampling, a "
+                              "64x range of apparent size.")
     steps_per_octave: int = Field(12, ge=1, description="k is quantised to 2^(n / this) (k = 1 exactly near 1).")
     search_interval_s: float = Field(0.1, gt=0, description="Seconds between two scale searches.")
     search_ratio: float = Field(1.12, gt=1, description="Scales tried: s / ratio, s, s * ratio.")
@@ -78,6 +79,32 @@ class ScaleSettings(BaseModel):
     search_min_score: float = Field(0.5, ge=-1, le=1, description="Search only when the best score is at least "
                                     "this (the target is seen well enough to measure its size).")
     search_min_p_visible: float = Field(0.5, ge=0, le=1, description="... and p(V=1|Z) at least this.")
+
+
+class ReacquisitionSettings(BaseModel):
+    """Loss detection and the search that re-acquires a lost target (see :mod:`common.reacquire`)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    enabled: bool = Field(False, description="Search for the target once it is lost (the real-footage profile does).")
+    lost_p_visible: float = Field(0.5, ge=0, le=1, description="The target counts as held while p(V=1|Z) is at least "
+                                  "this and the estimate is inside the frame.")
+    lost_after_s: float = Field(0.5, ge=0, description="Lost once it has not been held for this many seconds in a row.")
+    false_alarms_per_s: float = Field(0.05, gt=0, description="Accept a detection whose score the background would "
+                                      "reach this often a second over all the hypotheses searched (sets the score "
+                                      "threshold from the likelihood's background Beta).")
+    min_score: float | None = Field(None, ge=-1, le=1, description="A fixed acceptance score instead (None: from "
+                                    "false_alarms_per_s).")
+    tile_px: int = Field(384, ge=64, description="Side of a search tile in matched (resampled) pixels: bounds the "
+                         "search's CPU per frame.")
+    tiles_per_frame: int = Field(1, ge=1, description="Tiles searched per frame while lost.")
+    grid_lengths: float = Field(0.3, gt=0, description="Spacing of the candidate centres, in target lengths.")
+    refine_candidates: int = Field(3, ge=1, description="The best coarse candidates of a tile refined on finer grids.")
+    scale_ratio: float = Field(2 ** 0.5, gt=1, description="Successive sweeps of the frame search at the last held "
+                               "scale, then this much smaller and larger, ...")
+    scale_steps: int = Field(1, ge=0, description="... up to this many ratios either way.")
+    assumed_interval_s: float = Field(0.1, gt=0, description="Frame interval assumed for the threshold on the first "
+                                      "search (later: the measured one).")
 
 
 class TrackerSettings(BaseModel):
@@ -96,6 +123,7 @@ class TrackerSettings(BaseModel):
         default_factory=lambda: ScaleSettings(mode="off", target_size_px=None),
         description="Matching scale. Default here: off (the services' pipeline); the real-footage profile uses "
         "ScaleSettings()'s own defaults (upsample small targets, track the scale).")
+    reacquisition: ReacquisitionSettings = Field(default_factory=ReacquisitionSettings)
     stabilise: Literal["auto", "on", "off"] = Field(
         "auto", description="Estimate camera motion from the background when the source gives no homography "
         "(auto), always (on: replacing a source's homography; the world is then the first frame's pixels) or "
@@ -183,6 +211,7 @@ def profile_for(source, filter: FilterName = "rbpf", **kw) -> TrackerSettings:
     kw.setdefault("compensate_camera_rotation", True)
     kw.setdefault("motion_noise_lengths", REAL_MOTION_NOISE_LENGTHS)
     kw.setdefault("init_vel_lengths", REAL_INIT_VEL_LENGTHS)
+    kw.setdefault("reacquisition", ReacquisitionSettings(enabled=True))
     if kw.get("particles") is None:
         kw["particles"] = REAL_PARTICLES
     st = rate_adjusted_settings(source.fps, filter=filter, **kw)

@@ -163,6 +163,13 @@ class RaoBlackwellisedParticleFilter:
         self._setup(particles, p_vis, log_weights, time)
         return self
 
+    def restart(self, initial: InitialState) -> None:
+        """Start again from the prior ``initial`` (a re-acquisition), drawn with this filter's own
+        generator: the next ``step`` is then the first of a fresh track (no prediction if
+        ``initial.time`` is None)."""
+        particles = initial.sample_particles(self.config.n_particles, self.rng)
+        self._setup(particles, np.full(len(particles), initial.p_visible), None, initial.time)
+
     def _setup(self, particles, p_visible, log_weights, t0) -> None:
         n = len(particles)
         self.particles = np.array(particles, dtype=float)

@@ -82,6 +82,10 @@ class SIRParticleFilter:
         """``config`` None means :class:`SIRConfig` defaults; ``initial`` is the prior (world frame)."""
         self.config = config if config is not None else SIRConfig()
         self.rng = make_rng(seed)
+        self.restart(initial)
+
+    def restart(self, initial: InitialState) -> None:
+        """Start again from the prior ``initial`` (a re-acquisition), drawn with this filter's own generator."""
         n = self.config.n_particles
         self.particles = initial.sample_particles(n, self.rng)
         self.visible = (self.rng.random(n) < initial.p_visible).astype(np.int8)  # V_0 ~ Bernoulli(p_visible)

@@ -1,0 +1,247 @@
+"""Loss and re-acquisition: when the posterior says the target is gone, search the frame for it.
+
+Settings: :class:`common.settings.ReacquisitionSettings`. The filters track locally: once the
+target has left the frame, or the filter has lost it, no motion model brings the cloud to where
+it comes back. :class:`Reacquirer` watches the posterior and, while the target is lost, scans
+the frame with the polar matcher (the same template, every angle) and hands the tracker a
+confident detection to restart the filter on.
+
+- **Lost** when, for ``lost_after_s`` seconds in a row, ``p(V=1|Z)`` stays below
+  ``lost_p_visible`` or the estimate lies outside the frame. Seconds, not frames: the same at
+  10 fps and at 30 fps. While the target is held nothing is searched, so a look-alike elsewhere
+  in the frame cannot capture the track.
+- **Search** (only while lost): the frame is cut into square tiles of ``tile_px`` matched pixels
+  (the resampled image the template is matched on), overlapping by a target length, visited
+  nearest-first from where the target was last held, then in a stride that does not chase a
+  moving target, ``tiles_per_frame`` a frame; each tile is scored on a grid of candidate centres
+  ``grid_lengths`` target lengths apart at all 48 angles, at one scale per sweep of the frame
+  (the last held scale, then ``scale_ratio`` smaller and larger, ...). The CPU per frame is
+  bounded by the tile size: one prepared ``tile_px`` square crop and its candidates.
+- **Detection**: the best candidate of a tile is refined on a finer grid around it; it passes
+  when its score reaches the threshold at which the background's score distribution gives
+  ``false_alarms_per_s`` false detections a second over all the hypotheses searched (Bonferroni
+  over the candidates), the background being the higher of the likelihood's Beta fit for "no
+  target" (over the 12 independent orientations of the P-matrix rows) and a Beta fitted to
+  the tile's own candidates (see ``Reacquirer._threshold``). It must pass again on the next
+  frame, within a target length, before the filter is restarted on it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.detector.layout import N_ROWS
+from common.detector.resample import quantise_factor
+from common.tracking.observation import GRID_ANGLES_DEG
+
+
+@dataclass(frozen=True)
+class Detection:
+    """A confident match found by the search, original pixels."""
+
+    x: float
+    y: float
+    theta_deg: float
+    score: float
+    scale: float
+    """The target's apparent scale s (relative to the first box) the detection was matched at."""
+
+
+def acceptance_threshold(false_alarms_per_s: float, dt: float, hypotheses: int, background) -> float:
+    """The score the background exceeds with probability ``false_alarms_per_s * dt / (hypotheses *
+    N_ROWS)``: ``background`` is a (a, b) Beta of the scores where there is no target."""
+    from scipy.stats import beta
+
+    p = false_alarms_per_s * max(dt, 1e-3) / max(1, hypotheses * N_ROWS)
+    return float(beta.isf(min(max(p, 1e-15), 0.5), *background))
+
+
+class Reacquirer:
+    """The lost state and the tiled search (see the module docstring)."""
+
+    def __init__(self, cfg, background: tuple[float, float], frame_size: tuple[int, int]):
+        self.cfg = cfg
+        self.background = background
+        self.size = frame_size
+        self.lost = False
+        self._below_since: float | None = None
+        self.last_held: tuple[float, float] | None = None
+        self.last_scale = 1.0
+        self._tile = 0
+        self._sweep = 0
+        self._last_time: float | None = None
+        self._pending: tuple[Detection, float] | None = None
+        self.searches = 0
+        self.tiles = 0
+        self.detections = 0
+
+    # -- the lost state -------------------------------------------------------------------------
+    def observe(self, time: float, state, scale: float) -> None:
+        """Update the lost state from this frame's posterior ``state`` (after the filter step)."""
+        cfg = self.cfg
+        m = state.map_estimate
+        w, h = self.size
+        inside = 0 <= m.image_x < w and 0 <= m.image_y < h
+        held = state.p_visible >= cfg.lost_p_visible and inside
+        if held:
+            self._below_since = None
+            self.last_held = (float(m.image_x), float(m.image_y))
+            self.last_scale = float(scale)
+            if self.lost:
+                self.lost = False
+            return
+        if self._below_since is None:
+            self._below_since = float(time)
+        if not self.lost and time - self._below_since >= cfg.lost_after_s - 1e-9:
+            self.lost = True
+            self._tile, self._sweep, self._pending = 0, 0, None
+
+    def relocked(self, det: Detection) -> None:
+        """The tracker restarted the filter on ``det``: the target is held again."""
+        self.lost = False
+        self._below_since = None
+        self.last_held = (det.x, det.y)
+        self.last_scale = det.scale
+        self.detections += 1
+
+    # -- the search -------------------------------------------------------------------------------
+    def sweep_scale(self) -> float:
+        """The scale this sweep of the frame searches at: s0, s0/r, s0*r, s0/r^2, ... (within range)."""
+        n = self._sweep % (2 * self.cfg.scale_steps + 1)
+        j = 0 if n == 0 else ((n + 1) // 2) * (-1 if n % 2 else 1)
+        return self.last_scale * self.cfg.scale_ratio ** j
+
+    def _tiles(self, side: float, margin: float) -> list[tuple[float, float, float, float]]:
+        """The frame's tiles (x0, y0, x1, y1), each grown by ``margin`` on every side (a target on a
+        tile's edge is whole in one of them), in this sweep's order: nearest-first from where the
+        target was last held on the first sweep after the loss, then in a golden-ratio stride (a
+        target moving across the frame is not chased tile after tile)."""
+        w, h = self.size
+        nx, ny = max(1, math.ceil(w / side)), max(1, math.ceil(h / side))
+        tw, th = w / nx, h / ny
+        tiles = [(max(0.0, i * tw - margin), max(0.0, j * th - margin), min(w, (i + 1) * tw + margin),
+                  min(h, (j + 1) * th + margin)) for j in range(ny) for i in range(nx)]
+        cx, cy = self.last_held if self.last_held is not None else (w / 2, h / 2)
+        tiles.sort(key=lambda t: (math.hypot((t[0] + t[2]) / 2 - cx, (t[1] + t[3]) / 2 - cy), t[1], t[0]))
+        n = len(tiles)
+        if self._sweep == 0 or n < 3:
+            return tiles
+        stride = max(1, round(n * 0.618))
+        while math.gcd(stride, n) != 1:
+            stride += 1
+        return [tiles[(i * stride) % n] for i in range(n)]
+
+    def search(self, time: float, grid_at, scale_tracker) -> Detection | None:
+        """Search this frame; a detection confirmed on two frames in a row, or None.
+
+        ``grid_at(k, xy)`` -> (scores (N, 48), valid (N,)) at factor ``k`` (the scale search's
+        one-off grids); ``scale_tracker`` gives the matching factor and the target's length.
+
+        A candidate that passes the threshold on one frame is only pending: the next frame looks
+        for it again within a target length of it (at its scale) and confirms it if it passes
+        again there (a one-frame coincidence of the background does not restart the filter)."""
+        cfg = self.cfg
+        dt = cfg.assumed_interval_s if self._last_time is None else max(time - self._last_time, 1e-3)
+        self._last_time = float(time)
+        self.searches += 1
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            det, thr = pending
+            k = quantise_factor(scale_tracker.raw_factor(det.scale), scale_tracker.cfg.steps_per_octave)
+            step = max(cfg.grid_lengths * scale_tracker.length_px * det.scale, 1.0)
+            off = np.arange(-3, 4) * (step / 1.5)
+            gx, gy = np.meshgrid(det.x + off, det.y + off)
+            xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+            again, maxima = self._best(grid_at, k, xy, det.scale)
+            if again is not None:
+                again = self._refine(grid_at, k, xy, maxima, step / 1.5, det.scale)
+                if again.score >= thr:
+                    return again
+        best: tuple[Detection, float] | None = None
+        for _ in range(cfg.tiles_per_frame):
+            s = self.sweep_scale()
+            k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
+            length = scale_tracker.length_px * s
+            tiles = self._tiles(cfg.tile_px / k, 0.5 * length)
+            if self._tile >= len(tiles):
+                self._tile, self._sweep = 0, self._sweep + 1
+                continue
+            x0, y0, x1, y1 = tiles[self._tile]
+            self._tile += 1
+            self.tiles += 1
+            step = max(cfg.grid_lengths * length, 1.0)
+            xs = np.arange(x0 + step / 2, x1, step)
+            ys = np.arange(y0 + step / 2, y1, step)
+            if len(xs) == 0 or len(ys) == 0:
+                continue
+            gx, gy = np.meshgrid(xs, ys)
+            xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+            det, maxima = self._best(grid_at, k, xy, s)
+            if det is None:
+                continue
+            det = self._refine(grid_at, k, xy, maxima, step, s)
+            thr = self._threshold(dt, maxima)
+            if det.score >= thr and (best is None or det.score > best[0].score):
+                best = (det, thr)
+        self._pending = best
+        return None
+
+    def _refine(self, grid_at, k: float, xy: np.ndarray, maxima: np.ndarray, step: float, s: float) -> Detection:
+        """The best of the ``refine_candidates`` best coarse candidates, each refined twice on a
+        5x5 grid (a quarter, then a sixteenth of the coarse spacing): the matcher's peak is
+        narrower than the coarse grid, so a target between two candidates scores low there."""
+        order = np.argsort(-maxima, kind="stable")[: self.cfg.refine_candidates]
+        best: Detection | None = None
+        for i in order:
+            cx, cy = float(xy[i, 0]), float(xy[i, 1])
+            det = None
+            for frac in (0.25, 0.0625):
+                off = np.arange(-2, 3) * (step * frac)
+                fx, fy = np.meshgrid(cx + off, cy + off)
+                cand, _ = self._best(grid_at, k, np.stack([fx.ravel(), fy.ravel()], axis=1), s)
+                if cand is None:
+                    break
+                det, cx, cy = cand, cand.x, cand.y
+            if det is not None and (best is None or det.score > best.score):
+                best = det
+        return best
+
+    @staticmethod
+    def _best(grid_at, k: float, xy: np.ndarray, s: float) -> tuple[Detection | None, np.ndarray]:
+        """The best-scoring (position, angle) of ``xy`` at factor ``k``, and each position's best
+        score (-inf out of support)."""
+        scores, ok = grid_at(k, xy)
+        ok = np.asarray(ok, bool)
+        scores = np.where(ok[:, None], np.asarray(scores, float), -np.inf)
+        if not np.isfinite(scores).any():
+            return None, np.full(len(xy), -np.inf)
+        i, a = np.unravel_index(int(np.argmax(scores)), scores.shape)
+        det = Detection(float(xy[i, 0]), float(xy[i, 1]), float(GRID_ANGLES_DEG[a]), float(scores[i, a]), float(s))
+        return det, scores.max(axis=1)
+
+    def _threshold(self, dt: float, maxima: np.ndarray) -> float:
+        """The acceptance score for a search whose candidates' best scores are ``maxima``: the
+        higher of the likelihood's background Beta's and of a Beta fitted (by moments) to these
+        candidates themselves, less their top 5 percent (the target, if it is there), each at
+        ``false_alarms_per_s`` over the hypotheses searched. Real backgrounds (roads, kerbs,
+        buildings) score far above the calibration scene's, and this frame's own candidates say by
+        how much."""
+        cfg = self.cfg
+        if cfg.min_score is not None:
+            return float(cfg.min_score)
+        maxima = maxima[np.isfinite(maxima)]
+        n = max(len(maxima), 1)
+        thr = acceptance_threshold(cfg.false_alarms_per_s, dt, n, self.background)
+        bg = np.sort(np.clip(maxima, 1e-6, 1 - 1e-6))[: max(int(0.95 * len(maxima)), 0)]
+        if len(bg) >= 20:
+            m, v = float(bg.mean()), float(bg.var())
+            if v > 0 and m * (1 - m) > v:
+                c = m * (1 - m) / v - 1
+                from scipy.stats import beta
+
+                p = cfg.false_alarms_per_s * max(dt, 1e-3) / n
+                thr = max(thr, float(beta.isf(min(max(p, 1e-15), 0.5), m * c, (1 - m) * c)))
+        return thr
