@@ -459,6 +459,25 @@ class Pipeline:
                 except Invalid as exc:
                     guard.reject(key, exc)
 
+        early: dict[str, list] = {"estimate": [], "multi": []}
+        """Estimates that came before their frame's info (another path through the router): they
+        wait up to 5 s for it (at most 1,000), then are dropped as about an unknown frame."""
+
+        def take_estimates(box: str, key: str, cls, check, final: bool = False):
+            held, early[box] = early[box], []
+            while (s := inbox.pop(box)) is not None:
+                e = guard.decode(key, cls, payload_bytes(s), attachment_sender(s), check)
+                if e is not None:
+                    held.append((time.monotonic(), e))
+            newest = -1 if order.index is None else order.index
+            for t, e in held:
+                if e.frame_index <= newest:
+                    yield e
+                elif final or time.monotonic() - t > 5.0 or len(early[box]) >= 1000:
+                    guard.reject(key, Invalid("unknown_frame", f"frame {e.frame_index} (newest {newest})"))
+                else:
+                    early[box].append((t, e))
+
         try:
             subs = [session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate", maxlen=100_000)),
                     session.declare_subscriber(bus.key("track/multi_estimate"), inbox.callback("multi", maxlen=100_000)),
@@ -470,9 +489,9 @@ class Pipeline:
             self.start("ingest")
             bar = tqdm(total=None, unit="frame", disable=not progress, file=sys.stderr, desc=self.name)
             total = None
-            done = False
-            while not done:
-                inbox.wait(0.2)
+            done = final = False
+            while True:  # until done, then once more (final) for the messages still on the way
+                inbox.wait(0.2 if not final else 0.05)
                 while (s := inbox.pop("info")) is not None:
                     info = guard.decode("frame/info", FrameInfo, payload_bytes(s), attachment_sender(s),
                                         check_frame_info, order)
@@ -493,11 +512,7 @@ class Pipeline:
                         if gt is not None:
                             people[info.index] = gt
                 take_statuses()
-                while (s := inbox.pop("estimate")) is not None:
-                    e = guard.decode("track/estimate", Estimate, payload_bytes(s), attachment_sender(s), check_estimate,
-                                     order.index)  # about a frame seen
-                    if e is None:
-                        continue
+                for e in take_estimates("estimate", "track/estimate", Estimate, check_estimate, final):
                     self.latencies.append(e.latency_ms)
                     self.step_ms.append(e.step_ms)
                     self.skipped = max(self.skipped, e.frames_skipped)
@@ -512,11 +527,7 @@ class Pipeline:
                     bar.update(1)
                     if on_estimate is not None:
                         on_estimate(self, e)
-                while (s := inbox.pop("multi")) is not None:
-                    e = guard.decode("track/multi_estimate", MultiEstimate, payload_bytes(s), attachment_sender(s),
-                                     check_multi_estimate, order.index)
-                    if e is None:
-                        continue
+                for e in take_estimates("multi", "track/multi_estimate", MultiEstimate, check_multi_estimate, final):
                     self.skipped = max(self.skipped, e.frames_skipped)
                     self.latencies.append(e.latency_ms)
                     self.step_ms.append(e.step_ms)
@@ -536,6 +547,8 @@ class Pipeline:
                     bar.update(1)
                     if on_estimate is not None:
                         on_estimate(self, e)
+                if final:
+                    break
                 tracker = self.procs["tracker"]
                 ingest = self.procs["ingest"]
                 if tracker.poll() is not None and ingest.poll() is not None:
@@ -547,6 +560,7 @@ class Pipeline:
                 if timeout is not None and time.monotonic() - t0 > timeout:
                     failure = failure or f"timed out after {timeout:.0f} s"
                     done = True
+                final = done
             bar.close()
         finally:
             state["closing"] = True

@@ -219,8 +219,9 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                     image_order.accept(index)
                 elif topic == "frame/info":
                     check_frame_info(decode(FrameInfo, data, topic), info_order)
-                elif topic == "track/estimate":  # about a frame recorded already, finite
-                    check_estimate(decode(Estimate, data, topic), info_order.index)
+                elif topic == "track/estimate":  # finite, about a frame recorded (or just about to be:
+                    # an estimate may overtake its frame's info on the way here)
+                    check_estimate(decode(Estimate, data, topic), (info_order.index or 0) + 64)
                 elif topic.startswith("status/"):
                     check_status(decode(ServiceStatus, data, topic), topic)
                 else:

@@ -162,3 +162,69 @@ def test_status_ticker_publishes_at_most_once_a_period():
     _time.sleep(0.55)
     assert ticker.tick(attachment=b"x") and not ticker.tick()
     assert len(pub.sent) == 1 and pub.sent[0][0].published == 3 and pub.sent[0][1] == {"attachment": b"x"}
+
+
+def test_detector_caches_are_bounded_per_querier():
+    """A querier's prepared regions are kept for the last ``max_clients`` queriers only (200
+    names had grown the detector by 2 GB), and queriers with the same client name are kept
+    apart by their sender id."""
+    from common.detector import Template
+    from services.detector import DetectorCore, DetectorSettings
+
+    frame = open_source("synthetic:1", n_frames=1).frame(0)
+    core = DetectorCore(DetectorSettings(max_clients=3))
+    core.add_frame(0, frame.image, 0.0)
+    cx, cy = frame.truth.centre
+    core.install_template(1, Template.from_image(frame.image.astype(np.float32), (cx, cy)))
+    for i in range(20):
+        q = ScoreQuery(request_id=i, client=f"c{i}", frame_index=0, kind=ScoreQuery.AT, count=1, template_version=1,
+                       hypotheses=pack(np.array([[cx, cy, 0.0]])))
+        rep, _ = core.handle(q, querier="someone")
+        assert rep.status == ScoreReply.OK
+        assert len(core.caches) <= 3 and len({k[0] for k in core.observations}) <= 3
+    assert list(core.caches) == ["someone/c17", "someone/c18", "someone/c19"]
+    core.handle(ScoreQuery(request_id=99, client="c19", frame_index=0, kind=ScoreQuery.AT, count=1, template_version=1,
+                           hypotheses=pack(np.array([[cx, cy, 0.0]]))), querier="other")
+    assert "other/c19" in core.caches and "someone/c19" in core.caches
+    big = ScoreQuery(request_id=100, client="c", frame_index=0, kind=ScoreQuery.AT, count=100_000, template_version=1)
+    rep, _ = core.handle(big)
+    assert rep.status == ScoreReply.BAD_REQUEST and "at most" in rep.error
+
+
+def test_a_query_for_an_unknown_frame_does_not_hold_up_the_others(bus_with):
+    """Ten queries wait (a second each) for a frame that never comes; a query for a held frame
+    is answered meanwhile, at once."""
+    bus, session, start = bus_with
+    start("detector")
+    assert wait_for_alive(session, bus, ["detector"], 60)
+    frame = open_source("synthetic:1", n_frames=1).frame(0)
+    publisher(session, bus.key("frame/image")).put(image_to_msg(frame.image, 1000, "0").SerializeToString(),
+                                                   attachment=ns_attachment(1000))
+    time.sleep(0.5)
+    key = bus.key("detector/score")
+    waiting = [session.get(key, timeout=10.0, payload=ScoreQuery(
+        request_id=i, client="t", frame_index=50 + i, kind=ScoreQuery.AT, count=1, template_version=1,
+        hypotheses=pack(np.zeros((1, 3)))).SerializeToString()) for i in range(10)]
+    t0 = time.monotonic()
+    cx, cy = frame.truth.centre
+    x, y, w, h = frame.truth.box
+    q = ScoreQuery(request_id=77, client="t", frame_index=0, kind=ScoreQuery.TEMPLATE, count=1,
+                   hypotheses=pack(np.array([[cx, cy, x, y, w, h]])))
+    r = ask(session, bus, q.SerializeToString())
+    took = time.monotonic() - t0
+    assert r.status == ScoreReply.OK and took < 0.8, took  # not after the waiting ones' second each
+    t1 = time.monotonic()
+    statuses = [ScoreReply.FromString(rep.ok.payload.to_bytes()).status for h in waiting for rep in h if rep.ok]
+    assert statuses == [ScoreReply.UNKNOWN_FRAME] * 10
+    assert time.monotonic() - t1 < 3.0  # they waited together, not one after another (10 s)
+
+
+def test_bench_pipeline_fails_loudly_when_it_cannot_run():
+    """480 s of frames would need 37 GiB prerendered: ingest refuses, and the bench says so in
+    one line with a non-zero exit (it had printed fps 0 and exited 0)."""
+    p = subprocess.run([sys.executable, "-c", "import sys; from common.cli import main; sys.exit(main())",
+                        "bench", "--pipeline", "--seconds", "480", "--no-viewer", "--json"],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1, (p.stdout[-500:], p.stderr[-2000:])
+    err = [ln for ln in p.stderr.splitlines() if ln.startswith("bench --pipeline: error:")]
+    assert len(err) == 1 and "ingest exited with status 2" in err[0] and "prerender" in err[0], p.stderr[-2000:]
