@@ -244,6 +244,9 @@ class Pipeline:
         return self.source.split(":", 1)[0] == "synthetic"
 
     def start(self, service: str) -> subprocess.Popen:
+        """Start ``service`` (a previous process of it still running is stopped first: never two)."""
+        if service in self.procs and self.procs[service].poll() is None:
+            self.stop(service)
         log = open(self.log_dir / f"{service}.log", "ab")
         self.logs[service] = log
         env = dict(os.environ, PYTHONUNBUFFERED="1") | {k: os.environ.get(k, v) for k, v in MALLOC_ENV.items()}
@@ -500,6 +503,8 @@ class Pipeline:
                     infos_seen += not info.end_of_stream
                     state["frames"] = infos_seen
                     state["eos"] = state["eos"] or info.end_of_stream
+                    if info.end_of_stream:
+                        state["eos_index"] = int(info.index)
                     if info.total_frames and total is None:
                         total = info.total_frames
                         bar.total = total
@@ -561,6 +566,8 @@ class Pipeline:
                     failure = failure or f"timed out after {timeout:.0f} s"
                     done = True
                 final = done
+            if failure is None and total and state.get("eos_index", total) < total:
+                failure = f"the source ended after {state['eos_index']} of {total} frames (ingest stopped early)"
             bar.close()
         finally:
             state["closing"] = True

@@ -244,7 +244,7 @@ def test_detector_killed_and_restarted_multi(tmp_path):
     run = MultiRun.make("epmcmc-elpda", open_source(SOURCE, n_frames=frames).person_boxes(), n_parts=PARTS,
                         particles=PARTICLES)
     with Pipeline(SOURCE, None, TrackerSettings(), out_dir=tmp_path, frames=frames, viewer=False, log_dir=tmp_path,
-                  multi=run) as pipe:
+                  multi=run, supervise=False) as pipe:  # restarted by hand here
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
     assert [e[0] for e in events] == ["killed", "restarted"]
     ests = sorted(read_recording(result.mcap).decoded("track/multi_estimate"), key=lambda e: e.frame_index)

@@ -94,7 +94,8 @@ def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig):
 
 
 @pytest.mark.parametrize("victim,sig", [("tracker", signal.SIGKILL), ("tracker", signal.SIGTERM),
-                                        ("router", signal.SIGKILL)])
+                                        ("router", signal.SIGKILL), ("ingest", signal.SIGKILL),
+                                        ("ingest", signal.SIGTERM)])
 def test_dead_tracker_or_router_ends_the_run_within_seconds(tmp_path, victim, sig):
     frames = 200
     watch = Watch()
@@ -111,11 +112,11 @@ def test_dead_tracker_or_router_ends_the_run_within_seconds(tmp_path, victim, si
         ended = time.monotonic()
     assert killed
     took = ended - killed[0]
-    assert result.failure is not None and victim in result.failure, result.failure
+    assert result.failure is not None and (victim in result.failure or "source ended" in result.failure), result.failure
     assert not result.ok and result.estimates < frames
     assert took < 20, f"{took:.1f} s from the kill to the end of the run"
     watch.assert_clean()
-    if victim == "tracker":  # the recorder was stopped cleanly: the file is whole up to the fault
+    if victim != "router":  # the recorder was stopped cleanly: the file is whole up to the fault
         rec = read_recording(result.mcap)
         assert 9 <= len(rec.messages["track/estimate"]) < frames
     print(f"{victim} {sig.name}: failure {result.failure!r} after {took:.1f} s")
@@ -185,4 +186,45 @@ def test_full_disk_stops_the_recorder_cleanly(tmp_path):
     assert len(warnings) == 1 and "cut short" in warnings[0] and "\n" not in warnings[0]
     assert rec.run["source"] == SOURCE  # the run's metadata from its recorded config
     print(f"disk full: {result.failure}; {n} messages readable, {images} frames")
+    watch.assert_clean()
+
+
+def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path):
+    """SIGKILL of the recorder and the viewer at frame 8: both restarted, each into a file of
+    its own (``.part1``); the first recording is readable up to the kill, the second holds the
+    frames after the restart, the gap between them is in the run's restarts."""
+    frames = 40
+    watch = Watch()
+    killed = []
+
+    def inject(pipe, est):
+        watch.look(pipe)
+        if est.frame_index >= 8 and not killed:
+            for s in ("recorder", "viewer"):
+                pipe.procs[s].send_signal(signal.SIGKILL)
+                pipe.procs[s].wait(10)
+            killed.append(est.frame_index)
+
+    def restarted(pipe, service):  # the source waits for the new process (seconds here)
+        pipe.procs["ingest"].send_signal(signal.SIGSTOP)
+        try:
+            assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), [service], 120)
+        finally:
+            pipe.procs["ingest"].send_signal(signal.SIGCONT)
+
+    src = open_source(SOURCE, n_frames=frames)
+    with Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src, seed=3), out_dir=tmp_path, frames=frames,
+                  viewer=True, log_dir=tmp_path, on_restart=restarted) as pipe:
+        result = pipe.run(progress=False, timeout=300, on_estimate=inject)
+    assert sorted((r["service"], r["status"]) for r in result.restarts) == [("recorder", -9), ("viewer", -9)]
+    assert result.failure is None and not result.ok and result.estimates == frames
+    assert len(result.recordings) == 2 and result.recordings[1].endswith(".part1.mcap")
+    assert Path(result.rrd).with_name(Path(result.rrd).stem + ".part1.rrd").exists()
+    warnings = []
+    first = read_recording(result.recordings[0], warn=warnings.append)
+    second = read_recording(result.recordings[1], warn=warnings.append)
+    ids = lambda rec: [int(m.frame_id) for m in rec.decoded("frame/image")]  # noqa: E731
+    a, b = ids(first), ids(second)
+    assert a and b and max(a) < min(b) and max(b) == frames - 1  # the gap between them, nothing twice
+    assert len(warnings) == 1  # the killed one is cut short; the restarted one closed cleanly
     watch.assert_clean()
