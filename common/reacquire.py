@@ -15,7 +15,8 @@ confident detection to restart the filter on.
   nearest-first from where the target was last held, then in a stride that does not chase a
   moving target, ``tiles_per_frame`` a frame; each tile is scored on a grid of candidate centres
   ``grid_lengths`` target lengths apart at all 48 angles, at one scale per sweep of the frame
-  (the last held scale, then ``scale_ratio`` smaller and larger, ...). The CPU per frame is
+  (every other sweep at the last held scale, the others ``scale_ratio`` smaller and larger, ...
+  to ``scale_steps`` ratios either way, within the range the matching can follow). The CPU per frame is
   bounded by the tile size: one prepared ``tile_px`` square crop and its candidates.
 - **Detection**: the best candidate of a tile is refined on a finer grid around it; it passes
   when its score reaches the threshold at which the background's score distribution gives
@@ -74,45 +75,68 @@ class Reacquirer:
         self._sweep = 0
         self._last_time: float | None = None
         self._pending: tuple[Detection, float] | None = None
+        self._held_since: float | None = None
+        self._searching = False
         self.searches = 0
         self.tiles = 0
         self.detections = 0
 
     # -- the lost state -------------------------------------------------------------------------
     def observe(self, time: float, state, scale: float) -> None:
-        """Update the lost state from this frame's posterior ``state`` (after the filter step)."""
+        """Update the lost state from this frame's posterior ``state`` (after the filter step).
+
+        A search goes on across a restart that the filter does not keep (held for less than
+        ``lost_after_s``): it continues its sweep from where the target was last held for good,
+        instead of starting over at the false detection."""
         cfg = self.cfg
         m = state.map_estimate
         w, h = self.size
         inside = 0 <= m.image_x < w and 0 <= m.image_y < h
         held = state.p_visible >= cfg.lost_p_visible and inside
         if held:
+            if self._held_since is None:
+                self._held_since = float(time)
             self._below_since = None
-            self.last_held = (float(m.image_x), float(m.image_y))
-            self.last_scale = float(scale)
-            if self.lost:
-                self.lost = False
+            self.lost = False
+            if not self._searching or time - self._held_since >= cfg.lost_after_s - 1e-9:
+                self._searching = False
+                self.last_held = (float(m.image_x), float(m.image_y))
+                self.last_scale = float(scale)
             return
+        self._held_since = None
         if self._below_since is None:
             self._below_since = float(time)
         if not self.lost and time - self._below_since >= cfg.lost_after_s - 1e-9:
             self.lost = True
-            self._tile, self._sweep, self._pending = 0, 0, None
+            self._pending = None
+            if not self._searching:
+                self._tile, self._sweep, self._searching = 0, 0, True
 
     def relocked(self, det: Detection) -> None:
-        """The tracker restarted the filter on ``det``: the target is held again."""
+        """The tracker restarted the filter on ``det``."""
         self.lost = False
         self._below_since = None
-        self.last_held = (det.x, det.y)
-        self.last_scale = det.scale
+        self._held_since = None
         self.detections += 1
 
     # -- the search -------------------------------------------------------------------------------
-    def sweep_scale(self) -> float:
-        """The scale this sweep of the frame searches at: s0, s0/r, s0*r, s0/r^2, ... (within range)."""
-        n = self._sweep % (2 * self.cfg.scale_steps + 1)
-        j = 0 if n == 0 else ((n + 1) // 2) * (-1 if n % 2 else 1)
-        return self.last_scale * self.cfg.scale_ratio ** j
+    def sweep_scale(self, lo: float = 0.0, hi: float = math.inf) -> float:
+        """The scale this sweep of the frame searches at: every other sweep at s0, the scale the
+        target was last held at (the likeliest), the sweeps between at s0/r, s0*r, s0/r^2, ... up
+        to ``scale_steps`` ratios either way, skipping scales outside [lo, hi] (the scales the
+        matching can follow)."""
+        count = 4 * self.cfg.scale_steps
+        for _ in range(max(count, 1)):
+            n = self._sweep % count if count else 0
+            if n % 2 == 0:
+                return float(np.clip(self.last_scale, lo, hi))
+            m = n // 2  # 0, 1, 2, ...: ratios -1, +1, -2, +2, ...
+            j = (m // 2 + 1) * (-1 if m % 2 == 0 else 1)
+            s = self.last_scale * self.cfg.scale_ratio ** j
+            if lo * (1 - 1e-9) <= s <= hi * (1 + 1e-9):
+                return s
+            self._sweep += 2  # the next ratio
+        return float(np.clip(self.last_scale, lo, hi))
 
     def _tiles(self, side: float, margin: float) -> list[tuple[float, float, float, float]]:
         """The frame's tiles (x0, y0, x1, y1), each grown by ``margin`` on every side (a target on a
@@ -162,7 +186,7 @@ class Reacquirer:
                     return again
         best: tuple[Detection, float] | None = None
         for _ in range(cfg.tiles_per_frame):
-            s = self.sweep_scale()
+            s = self.sweep_scale(*scale_tracker.scale_range())
             k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
             length = scale_tracker.length_px * s
             tiles = self._tiles(cfg.tile_px / k, 0.5 * length)

@@ -211,7 +211,14 @@ class Tracker:
                 if np.isfinite(rot) and rot != 0.0:
                     particles[:, 4] = wrap_degrees(particles[:, 4] + rot)
         if self.frames > 0:
-            self.scale.predict(self.homography, h, world, frame.time)
+            # the camera's zoom at the target is read where the target is: not at an estimate that has
+            # left the frame (the homography extrapolated there), nor while the target is lost
+            m = self.last_state.map_estimate if self.last_state is not None else None
+            w, hgt = frame.size
+            seen = m is not None and 0 <= m.image_x < w and 0 <= m.image_y < hgt
+            if self.reacquirer is not None and self.reacquirer.lost:
+                seen = False
+            self.scale.predict(self.homography, h, world if seen else None, frame.time)
         self.factor = self.scale.factor()
         det = self._search(frame, h)
         obs = self._obs = self.observation(frame, h)

@@ -103,10 +103,13 @@ class ScaleTracker:
             self.s = s
         self._clip()
 
+    def scale_range(self) -> tuple[float, float]:
+        """(lo, hi): the scales s_t whose factor is not clipped (beyond, the matching cannot follow)."""
+        return self.u / max(self.cfg.max_upsample, 1.0), self.u / self.cfg.min_factor
+
     def _clip(self) -> None:
         """Keep s_t where the factor is not clipped (beyond, the matching scale cannot follow)."""
-        lo = self.u / max(self.cfg.max_upsample, 1.0)
-        hi = self.u / self.cfg.min_factor
+        lo, hi = self.scale_range()
         self.s = float(np.clip(self.s, lo, hi))
         if self.s in (lo, hi):
             self.rate = 0.0

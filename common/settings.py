@@ -102,7 +102,8 @@ class ReacquisitionSettings(BaseModel):
     refine_candidates: int = Field(3, ge=1, description="The best coarse candidates of a tile refined on finer grids.")
     scale_ratio: float = Field(2 ** 0.5, gt=1, description="Successive sweeps of the frame search at the last held "
                                "scale, then this much smaller and larger, ...")
-    scale_steps: int = Field(1, ge=0, description="... up to this many ratios either way.")
+    scale_steps: int = Field(8, ge=0, description="... up to this many ratios either way (8 ratios of sqrt(2): 16x), "
+                             "within the range the matching can follow.")
     assumed_interval_s: float = Field(0.1, gt=0, description="Frame interval assumed for the threshold on the first "
                                       "search (later: the measured one).")
 

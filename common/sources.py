@@ -12,7 +12,10 @@ Source strings (the ``SOURCE`` argument of the commands):
 - ``camera:N``: live camera device N (real-time: frames are timestamped on capture);
 - ``people``, ``people:SEED`` or ``people:SEED:PEOPLE``: the synthetic people scene
   (:mod:`common.scene.people`, 3 people unless PEOPLE says otherwise) with per-part ground truth
-  (``people_truth(i)``); ``n_frames`` (at least 10) sets the scene's length, as ``track-multi``.
+  (``people_truth(i)``); ``n_frames`` (at least 10) sets the scene's length, as ``track-multi``;
+- ``zoom[:SEED]``, ``exit[:SEED]``: the synthetic event sequences of :mod:`common.scene.events`
+  (a 10x zoom onto the car; the car leaving the frame and coming back elsewhere), tracked with
+  the real-footage profile (no homography).
 """
 
 from __future__ import annotations
@@ -359,6 +362,18 @@ def open_source(spec: str, n_frames: int | None = None) -> Source:
         return SyntheticSource(seed=seed, n_frames=n_frames, config=config)
     if spec == "people" or spec.startswith("people:"):
         return open_people(spec, n_frames)
+    for name in ("zoom", "exit"):
+        if spec == name or spec.startswith(name + ":"):
+            from common.scene.events import ExitSource, ZoomSource
+
+            try:
+                seed = int(spec.partition(":")[2] or 0)
+            except ValueError:
+                raise SourceError(f"bad source {spec!r}: use {name} or {name}:SEED (an integer)") from None
+            src = ZoomSource(seed=seed) if name == "zoom" else ExitSource(seed=seed)
+            if n_frames is not None:
+                src.n_frames = max(0, min(int(n_frames), src.n_frames))
+            return src
     if spec.startswith("camera:"):
         try:
             return CameraSource(int(spec.partition(":")[2]), max_frames=n_frames)
