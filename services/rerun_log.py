@@ -14,7 +14,7 @@ Entity paths::
     camera/image              EncodedImage (JPEG) of the frame
     camera/particles          Points2D, particles in image pixels, coloured by weight (viridis)
     camera/estimate           Points2D, the MAP estimate (red; grey when prediction only)
-    camera/estimate_box       LineStrips2D, template-sized box rotated by theta (once a size is known)
+    camera/estimate_box       LineStrips2D, the estimate's box (w, h; else the first box) rotated by theta
     camera/mmse               Points2D, the MMSE estimate
     camera/track              LineStrips2D, the last K MAP positions
     camera/truth              Points2D, true centre (when known)
@@ -360,10 +360,12 @@ class RunLogger:
             self.rec.log("camera/estimate", rr.Points2D(
                 [[msg.x, msg.y]], colors=colour, radii=rr.Radius.ui_points(5.0),
                 labels=f"MAP theta={msg.theta_deg:.1f} p_vis={msg.p_visible:.2f}", show_labels=False))
-            if self._box_size is not None and math.isfinite(msg.theta_deg):
+            # the estimate's own box (w, h: the first box times the apparent scale), else the first box
+            size = (msg.w, msg.h) if msg.w > 0 and msg.h > 0 and _finite(msg.w, msg.h) else self._box_size
+            if size is not None and math.isfinite(msg.theta_deg):
                 self.rec.log("camera/estimate_box", rr.LineStrips2D(
-                    [self._rotated_box(msg.x, msg.y, *self._box_size, msg.theta_deg)], colors=colour,
-                    radii=rr.Radius.ui_points(1.0)))
+                    [self._rotated_box(msg.x, msg.y, *size, msg.theta_deg)], colors=colour,
+                    radii=rr.Radius.ui_points(1.0), labels="re-acquired" if msg.reacquired else None))
         else:
             self.rec.log("camera/estimate", rr.Clear(recursive=False))
             self.rec.log("camera/estimate_box", rr.Clear(recursive=False))
