@@ -21,6 +21,19 @@ from pydantic import BaseModel, ConfigDict, Field
 log = logging.getLogger("polartrack.bus")
 
 
+class TlsConfig(BaseModel):
+    """Zenoh's TLS transport (endpoints ``tls/HOST:PORT``), mutual by default: certificates from
+    ``tools/gen_certs.sh OUT_DIR [HOST ...] --client NAME ...``."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    root_ca_certificate: str = Field(description="PEM of the CA that signed every certificate of the deployment")
+    certificate: str | None = Field(None, description="this process's certificate (PEM): the router's, or a "
+                                    "client's (mTLS; its common name is what access-control rules match)")
+    private_key: str | None = Field(None, description="the certificate's private key (PEM)")
+    mtls: bool = Field(True, description="mutual TLS: a client without a certificate signed by the CA cannot connect")
+
+
 class BusConfig(BaseModel):
     """How a service joins the bus."""
 
@@ -44,6 +57,10 @@ class BusConfig(BaseModel):
                                   "through it; smaller ones (queries, replies, estimates) through the socket, "
                                   "which is quicker for them (with every message through shared memory, bench --pipeline "
                                   "made 3.7 fps; with the frames only, 11)")
+    tls: TlsConfig | None = Field(None, description="TLS (mTLS) transport for multi-host deployments")
+    access_control: dict | None = Field(None, description="Zenoh's access_control section as is (a router's "
+                                        "rules: which subjects, e.g. cert_common_names, may put or declare on "
+                                        "which keys)")
     ids: dict[str, str] = Field(default_factory=dict, description="The run's per-service sender ids "
                                 "({service: id}, given by the launcher): every message carries its sender's id, "
                                 "and a service accepts a key only from the run's services that speak on it "
@@ -58,6 +75,15 @@ class BusConfig(BaseModel):
             c.insert_json5("transport/shared_memory/transport_optimization", json.dumps({
                 "enabled": True, "pool_size": self.shm_pool_mb << 20,
                 "message_size_threshold": self.shm_threshold_kb << 10}))
+        if self.tls is not None:
+            t = self.tls
+            tls = {"root_ca_certificate": t.root_ca_certificate, "enable_mtls": t.mtls}
+            if t.certificate and t.private_key:
+                tls |= {"listen_certificate": t.certificate, "listen_private_key": t.private_key,
+                        "connect_certificate": t.certificate, "connect_private_key": t.private_key}
+            c.insert_json5("transport/link/tls", json.dumps(tls))
+        if self.access_control is not None:
+            c.insert_json5("access_control", json.dumps(self.access_control))
         c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         # peers start in any order: retry connections quickly so the mesh forms in well under a second
