@@ -80,6 +80,13 @@ class Reacquirer:
         self.searches = 0
         self.tiles = 0
         self.detections = 0
+        self.seconds = 0.0
+        """Wall time spent searching (a statistic for the benchmarks)."""
+
+    def stats(self) -> dict:
+        """Searched frames, tiles, restarts and the search's milliseconds per searched frame."""
+        return {"searched_frames": self.searches, "tiles": self.tiles, "restarts": self.detections,
+                "ms_per_searched_frame": round(1e3 * self.seconds / self.searches, 2) if self.searches else 0.0}
 
     # -- the lost state -------------------------------------------------------------------------
     def observe(self, time: float, state, scale: float) -> None:

@@ -110,7 +110,7 @@ def read_recording(path: str, warn=None) -> Recording:
 
 
 COMPARED = ("frame_index", "time_s", "observed", "filter", "x", "y", "theta_deg", "p_visible", "world_x", "world_y",
-            "vx", "vy", "speed", "mmse_x", "mmse_y", "n_eff", "resampled")
+            "vx", "vy", "speed", "mmse_x", "mmse_y", "n_eff", "resampled", "w", "h", "reacquired")
 """Estimate fields that must be identical on replay (not timings or latencies)."""
 
 

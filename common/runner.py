@@ -11,6 +11,7 @@ settings therefore give bit-identical estimates in-process, multi-process and on
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 from typing import Iterable, Iterator
 
@@ -254,10 +255,13 @@ class Tracker:
         r = self.reacquirer
         if r is None or not r.lost:
             return None
+        t0 = time.perf_counter()
         try:
             det = r.search(frame.time, lambda k, xy: self.detector.scale_grid(frame, k, xy), self.scale)
         except ObservationUnavailable:
             return None  # a remote detector did not answer: search again next frame
+        finally:
+            r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
         if det is None:
             return None
         self.scale.s = det.scale

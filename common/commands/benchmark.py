@@ -98,8 +98,9 @@ def peer_command(args) -> list[str]:
     return [uv, "run", *PEER_ENV, "python", str(PEERS_TOOL)]
 
 
-def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float]:
-    """PolarTrack's axis-aligned box per frame (NaN rows where it has none) and its seconds."""
+def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float, dict | None]:
+    """PolarTrack's axis-aligned box per frame (NaN rows where it has none), its seconds and its
+    re-acquisition's statistics (None when off)."""
     from common.runner import Tracker
 
     tracker, boxes, elapsed = None, [], 0.0
@@ -112,7 +113,8 @@ def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float]:
         box = state.axis_aligned_box()
         boxes.append((np.nan,) * 4 if box is None else box)
         bar.update(1)
-    return np.asarray(boxes, float), elapsed
+    stats = tracker.reacquirer.stats() if tracker is not None and tracker.reacquirer is not None else None
+    return np.asarray(boxes, float), elapsed, stats
 
 
 def run_peers(prefix: list[str], spec: str, init, args, n_frames: int, bar) -> dict:
@@ -166,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         with tqdm(total=len(source), unit="frame", desc=f"{source.name} polartrack", disable=quiet,
                   file=sys.stderr, leave=False) as bar:
             try:
-                boxes, elapsed = run_polartrack(source, init, settings, bar)
+                boxes, elapsed, reacq = run_polartrack(source, init, settings, bar)
             except (InitError, SourceError) as exc:
                 raise UsageError(f"{spec}: {exc}") from None
         runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 else float("nan"))}
@@ -189,6 +191,8 @@ def run(args: argparse.Namespace) -> int:
                 results[name]["failures"] = failures[name]
             curves["precision"].setdefault(name, []).append(sc.precision)
             curves["success"].setdefault(name, []).append(sc.success)
+        if reacq is not None:
+            results["polartrack"]["reacquisition"] = reacq
         plot = out_dir / f"errors-{source.name}.png"
         visible = ~np.isnan(truth).any(axis=1)
         plot_errors_over_time({n: sc.errors for n, sc in scores.items()}, visible, plot,
