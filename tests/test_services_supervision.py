@@ -46,6 +46,31 @@ class Watch:
         assert not (segment_files() & self.segments), "shared-memory files left"
 
 
+def kill_at(watch: Watch, services, sig, at: int = 8, pause_source: bool = False):
+    """``on_estimate`` sending ``sig`` to ``services`` at frame ``at`` (the source stopped first
+    with ``pause_source``: see :func:`resume_when_alive`), and the list of (frame, time) it did."""
+    killed = []
+
+    def inject(pipe, est):
+        watch.look(pipe)
+        if est.frame_index >= at and not killed:
+            if pause_source:
+                pipe.procs["ingest"].send_signal(signal.SIGSTOP)
+            for s in services:
+                pipe.procs[s].send_signal(sig)
+            killed.append((est.frame_index, time.monotonic()))
+
+    return inject, killed
+
+
+def resume_when_alive(pipe, service) -> None:
+    """``on_restart``: the source goes on once the restarted service is up (seconds here)."""
+    try:
+        assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), [service], 120)
+    finally:
+        pipe.procs["ingest"].send_signal(signal.SIGCONT)
+
+
 def pipeline(tmp_path, frames, **kw):
     src = open_source(SOURCE, n_frames=frames)
     return Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src, seed=3), out_dir=tmp_path, frames=frames,
@@ -59,22 +84,8 @@ def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig):
     many frames), so the outage is the frames already in flight: at most a few unobserved."""
     frames = 40
     watch = Watch()
-    events = []
-
-    def inject(pipe, est):
-        watch.look(pipe)
-        if est.frame_index >= 8 and not events:
-            pipe.procs["ingest"].send_signal(signal.SIGSTOP)
-            pipe.procs["detector"].send_signal(sig)
-            events.append(est.frame_index)
-
-    def restarted(pipe, service):
-        try:
-            assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), ["detector"], 120)
-        finally:
-            pipe.procs["ingest"].send_signal(signal.SIGCONT)
-
-    with pipeline(tmp_path, frames, on_restart=restarted) as pipe:
+    inject, _ = kill_at(watch, ["detector"], sig, pause_source=True)
+    with pipeline(tmp_path, frames, on_restart=resume_when_alive) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
     assert [(r["service"], r["status"]) for r in result.restarts] == [("detector", -sig if sig == signal.SIGKILL else 0)]
     gap = result.restarts[0]
@@ -99,19 +110,12 @@ def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig):
 def test_dead_tracker_or_router_ends_the_run_within_seconds(tmp_path, victim, sig):
     frames = 200
     watch = Watch()
-    killed = []
-
-    def inject(pipe, est):
-        watch.look(pipe)
-        if est.frame_index >= 8 and not killed:
-            pipe.procs[victim].send_signal(sig)
-            killed.append(time.monotonic())
-
+    inject, killed = kill_at(watch, [victim], sig)
     with pipeline(tmp_path, frames) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
         ended = time.monotonic()
     assert killed
-    took = ended - killed[0]
+    took = ended - killed[0][1]
     assert result.failure is not None and (victim in result.failure or "source ended" in result.failure), result.failure
     assert not result.ok and result.estimates < frames
     assert took < 20, f"{took:.1f} s from the kill to the end of the run"
@@ -195,22 +199,11 @@ def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path):
     frames after the restart, the gap between them is in the run's restarts."""
     frames = 40
     watch = Watch()
-    killed = []
+    inject, _ = kill_at(watch, ["recorder", "viewer"], signal.SIGKILL, pause_source=True)
 
-    def inject(pipe, est):
-        watch.look(pipe)
-        if est.frame_index >= 8 and not killed:
-            for s in ("recorder", "viewer"):
-                pipe.procs[s].send_signal(signal.SIGKILL)
-                pipe.procs[s].wait(10)
-            killed.append(est.frame_index)
-
-    def restarted(pipe, service):  # the source waits for the new process (seconds here)
+    def restarted(pipe, service):  # the source waits for each new process
         pipe.procs["ingest"].send_signal(signal.SIGSTOP)
-        try:
-            assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), [service], 120)
-        finally:
-            pipe.procs["ingest"].send_signal(signal.SIGCONT)
+        resume_when_alive(pipe, service)
 
     src = open_source(SOURCE, n_frames=frames)
     with Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src, seed=3), out_dir=tmp_path, frames=frames,

@@ -160,6 +160,16 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
     from services.launcher import Pipeline
 
     frames = max(2, int(round(seconds * 30)))
+    if prerender:  # before building a long scene (23 s for 480 s of frames) and starting services
+        import inspect
+
+        from common.sources import PrerenderedSource
+
+        limit = inspect.signature(PrerenderedSource.__init__).parameters["max_bytes"].default
+        need = open_source(f"synthetic:{seed}", n_frames=1).frame(0).image.nbytes * frames
+        if need > limit:
+            return {"frames": frames, "failure": f"prerendering {frames} frames needs {need / 2**30:.1f} GiB "
+                    f"(limit {limit / 2**30:.1f} GiB): use fewer --seconds or --render-live"}
     spec = f"synthetic:{seed}:{max(frames, 300)}"
     src = open_source(spec, n_frames=frames)
     settings = profile_for(src, seed=seed, particles=particles)
