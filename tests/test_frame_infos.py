@@ -43,7 +43,7 @@ def _take_all(q: InfoQueue) -> list[tuple[int, bool, int]]:
 
 
 def _frames(n: int, eos: bool = False) -> list[FrameInfo]:
-    infos = [FrameInfo(index=i, time_s=i / 30) for i in range(n)]
+    infos = [FrameInfo(index=i, time_s=i / 30, width=1280, height=720) for i in range(n)]  # (checked: a size)
     return infos + ([FrameInfo(index=n, end_of_stream=True)] if eos else [])
 
 
@@ -86,7 +86,7 @@ def test_end_of_stream_is_never_skipped_and_frames_before_it_are_tracked():
 
 
 def test_malformed_info_is_counted_and_the_next_one_taken():
-    q, c, _ = _queue(True, 8, [_frames(1)[0], b"\xff\x00garbage", FrameInfo(index=1)])
+    q, c, _ = _queue(True, 8, [_frames(1)[0], b"\xff\x00garbage", FrameInfo(index=1, width=1280, height=720)])
     assert [t[0] for t in _take_all(q)] == [0, 1]
     assert c["malformed"] == 1 and c["received"] == 2
 
@@ -106,3 +106,19 @@ def test_lag_budget_defaults_by_mode():
     assert TrackerServiceSettings(init_box=(1, 2, 3, 4), max_lag_frames=3).lag_frames() == 3
     with pytest.raises(ValueError):
         TrackerServiceSettings(init_box=(1, 2, 3, 4), max_lag_frames=-1)
+
+
+def test_infos_a_tracker_cannot_step_on_are_dropped_and_counted():
+    """NaN or backward time, an old index replayed, a 1e6 s jump, a zero homography: each dropped
+    and counted (each had raised in Tracker.step or thrown the estimate 1e7 px off)."""
+    bad = [FrameInfo(index=2, time_s=float("nan"), width=1280, height=720),
+           FrameInfo(index=0, time_s=0.0, width=1280, height=720),
+           FrameInfo(index=2, time_s=1e6, width=1280, height=720),
+           FrameInfo(index=2, time_s=0.01, width=1280, height=720)]
+    zero = FrameInfo(index=2, time_s=2 / 30, width=1280, height=720)
+    zero.homography.extend([0.0] * 9)
+    q, c, _ = _queue(False, 14, _frames(2) + bad + [zero] + [FrameInfo(index=2, time_s=2 / 30, width=1280, height=720)])
+    assert [t[0] for t in _take_all(q)] == [0, 1, 2]
+    assert c["malformed"] == 5 and c["received"] == 3
+    assert q.guard.rejects.snapshot() == {"frame/info": {"bad_time": 1, "index_not_increasing": 1, "time_jump": 1,
+                                                         "time_backwards": 1, "bad_homography": 1}}
