@@ -222,22 +222,31 @@ class Reacquirer:
 
     def _refine(self, grid_at, k: float, xy: np.ndarray, maxima: np.ndarray, step: float, s: float) -> Detection:
         """The best of the ``refine_candidates`` best coarse candidates, each refined twice on a
-        5x5 grid (a quarter, then a sixteenth of the coarse spacing): the matcher's peak is
-        narrower than the coarse grid, so a target between two candidates scores low there."""
-        order = np.argsort(-maxima, kind="stable")[: self.cfg.refine_candidates]
+        5x5 grid (a quarter, then a sixteenth of the coarse spacing), every candidate's grid in one
+        query per stage: the matcher's peak is narrower than the coarse grid, so a target between
+        two candidates scores low there."""
+        centres = xy[np.argsort(-maxima, kind="stable")[: self.cfg.refine_candidates]]
         best: Detection | None = None
-        for i in order:
-            cx, cy = float(xy[i, 0]), float(xy[i, 1])
-            det = None
-            for frac in (0.25, 0.0625):
-                off = np.arange(-2, 3) * (step * frac)
-                fx, fy = np.meshgrid(cx + off, cy + off)
-                cand, _ = self._best(grid_at, k, np.stack([fx.ravel(), fy.ravel()], axis=1), s)
-                if cand is None:
-                    break
-                det, cx, cy = cand, cand.x, cand.y
-            if det is not None and (best is None or det.score > best.score):
-                best = det
+        for frac in (0.25, 0.0625):
+            off = np.arange(-2, 3) * (step * frac)
+            gx, gy = np.meshgrid(off, off)
+            grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+            pts = (centres[:, None, :] + grid[None, :, :]).reshape(-1, 2)
+            scores, ok = grid_at(k, pts)
+            per = np.where(np.asarray(ok, bool)[:, None], np.asarray(scores, float), -np.inf)
+            per = per.reshape(len(centres), len(grid), -1)
+            flat = per.reshape(len(centres), -1)
+            idx = np.argmax(flat, axis=1)
+            pi, ai = np.unravel_index(idx, per.shape[1:])
+            centres = pts.reshape(len(centres), len(grid), 2)[np.arange(len(centres)), pi]
+            top = int(np.argmax(flat[np.arange(len(centres)), idx]))
+            score = float(flat[top, idx[top]])
+            if np.isfinite(score):
+                best = Detection(float(centres[top, 0]), float(centres[top, 1]), float(GRID_ANGLES_DEG[ai[top]]),
+                                 score, float(s))
+        if best is None:
+            i = int(np.argmax(maxima))
+            best = Detection(float(xy[i, 0]), float(xy[i, 1]), 0.0, float(maxima[i]), float(s))
         return best
 
     @staticmethod

@@ -30,6 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--render-live", action="store_true",
                    help="--pipeline: render the synthetic frames while the run goes on (about 22 ms of a core a "
                         "frame, more than a camera or a video file costs) instead of before it starts")
+    p.add_argument("--tracker", metavar="SOURCE", nargs="?", const="exit:0", default=None,
+                   help="benchmark the in-process tracker with the real-footage profile on SOURCE instead (default "
+                        "exit:0: 1280x720, the car leaving the frame and coming back, so the re-acquisition search "
+                        "runs); reported beside the same run with re-acquisition off")
     p.add_argument("--pace", choices=["realtime", "consumer"], default="realtime",
                    help="--pipeline: frames at 30 fps (a slow pipeline skips), or every frame paced by the "
                         "tracker (the CPU per frame of each service, without skipping)")
@@ -269,7 +273,54 @@ def steady_cpu(status_log) -> dict[str, tuple[float, float | None]]:
     return out
 
 
+def measure_tracker(spec: str, seed: int = 0) -> dict:
+    """The real-footage profile in-process on ``spec``, one thread: frames per second of tracking
+    (the source's own reading and decoding excluded), ms per frame while held and while lost, and
+    the re-acquisition search's share; beside the same frames with re-acquisition off."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    from common.runner import Tracker
+    from common.settings import profile_for
+    from common.sources import open_source
+
+    src = open_source(spec)
+    frames = list(src)
+    out: dict = {"source": spec, "frames": len(frames), "size": list(frames[0].size)}
+    cv2.setNumThreads(1)
+    for name, on in (("reacquisition_on", True), ("reacquisition_off", False)):
+        st = profile_for(src, seed=seed)
+        st = st.model_copy(update={"reacquisition": st.reacquisition.model_copy(update={"enabled": on})})
+        held, lost = [], []
+        with threadpool_limits(1):
+            tracker = Tracker.start(frames[0], frames[0].truth.box if frames[0].truth else None, st)
+            for f in frames:
+                searching = tracker.reacquirer is not None and tracker.reacquirer.lost
+                t0 = time.perf_counter()
+                tracker.step(f)
+                (lost if searching else held).append(time.perf_counter() - t0)
+        total = sum(held) + sum(lost)
+        r = {"fps": round(len(frames) / total, 2), "held_ms_p50": round(1e3 * float(np.median(held)), 2) if held else None,
+             "searching_frames": len(lost),
+             "searching_ms_p50": round(1e3 * float(np.median(lost)), 2) if lost else None}
+        if tracker.reacquirer is not None:
+            r["reacquisition"] = tracker.reacquirer.stats()
+        out[name] = r
+    out["fps_ratio_on_off"] = round(out["reacquisition_on"]["fps"] / out["reacquisition_off"]["fps"], 3)
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.tracker is not None:
+        from common.cli import UsageError
+        from common.sources import SourceError
+
+        try:
+            result = measure_tracker(args.tracker, seed=args.seed)
+        except (SourceError, ValueError) as exc:
+            raise UsageError(f"bench --tracker {args.tracker}: {exc}") from None
+        print(json.dumps(result) if args.json else "\n".join(f"{k:<20} {v}" for k, v in result.items()))
+        return 0
     if args.pipeline:
         result = measure_pipeline(args.seconds, args.particles, viewer=not args.no_viewer, seed=args.seed,
                                   pace=args.pace, prerender=not args.render_live)
