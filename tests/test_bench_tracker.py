@@ -1,0 +1,25 @@
+"""bench --tracker: the real-footage profile in-process, re-acquisition on beside off, on the exit sequence."""
+
+import json
+
+from common.cli import main
+
+
+def test_bench_tracker_reports_the_search_beside_a_run_without_it(capsys):
+    assert main(["bench", "--tracker", "exit:0", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    on, off = out["reacquisition_on"], out["reacquisition_off"]
+    assert out["frames"] == 112 and out["size"] == [1280, 720]
+    # the car is out of the frame for 1.5 s and back on the left: searched while lost, one restart
+    assert on["searching_frames"] > 10 and on["reacquisition"]["restarts"] == 1
+    assert on["reacquisition"]["searched_frames"] == on["searching_frames"]
+    assert on["reacquisition"]["ms_per_searched_frame"] > 0
+    # negative control: without re-acquisition nothing is searched
+    assert off["searching_frames"] == 0 and "reacquisition" not in off
+    assert out["fps_ratio_on_off"] == round(on["fps"] / off["fps"], 3)
+
+
+def test_bench_tracker_bad_source_is_one_line(capsys):
+    assert main(["bench", "--tracker", "nowhere/at/all.mp4"]) == 2
+    err = capsys.readouterr().err
+    assert "no such file or folder" in err and len(err.strip().splitlines()) == 1
