@@ -5,7 +5,7 @@ def test_pipeline_targets():
     """The bench's verdict on issue 4's targets, at and around each limit."""
     import numpy as np
 
-    from common.commands.bench import meets_targets
+    from services.commands.bench import meets_targets
 
     lat = np.array([10.0, 40.0, 300.0])  # p50 40 ms
     assert meets_targets(30.0, lat, 0, 0)["meets_targets"]

@@ -2,7 +2,7 @@
 
 import json
 
-from common.cli import main
+from services.cli import main
 
 
 def test_bench_tracker_reports_the_search_beside_a_run_without_it(capsys):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from common.benchmark import SUCCESS_THRESHOLDS, box_iou, mean_scores, score_boxes, success_curve
-from common.cli import main
+from services.cli import main
 from common.evaluation import precision_curve
 from common.sources import SyntheticSource
 
@@ -207,7 +207,7 @@ def test_peers_failure_is_one_line(sequence, tmp_path, capsys, monkeypatch):
     """A peers' run that fails (here a stand-in script) ends the benchmark with its last stderr line."""
     import sys
 
-    from common.commands import benchmark
+    from services.commands import benchmark
 
     script = tmp_path / "fail.py"
     script.write_text("import sys\nprint('progress 3', file=sys.stderr)\nprint('Traceback ...', file=sys.stderr)\n"

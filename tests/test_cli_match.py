@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from common.cli import main
+from services.cli import main
 from imagegen import blob_image
 
 

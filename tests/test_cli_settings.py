@@ -4,8 +4,8 @@ import argparse
 
 import pytest
 
-from common.cli import main
-from common.commands.common_args import settings_for
+from services.cli import main
+from services.commands.common_args import settings_for
 from common.sources import open_source
 
 

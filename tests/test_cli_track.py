@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from common.cli import main
+from services.cli import main
 from common.sources import open_source
 
 

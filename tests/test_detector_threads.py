@@ -5,7 +5,7 @@ import pytest
 
 from common.detector import PolarMatcher, Template, prepare_frame
 from common.detector import threads
-from common.commands.bench import _test_frame
+from services.commands.bench import _test_frame
 
 
 def test_chunks_cover_every_hypothesis_once():

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from common.cli import main
+from services.cli import main
 from common.scene.people import PeopleScene, PeopleSceneConfig
 
 
@@ -92,7 +92,7 @@ def test_missing_boxes_are_explained(frames_folder, capsys):
 
 
 def test_eval_multi_part_level_association(tmp_path, capsys, monkeypatch):
-    from common.commands import eval_multi
+    from services.commands import eval_multi
 
     seen = []
     real = eval_multi._configs
@@ -104,7 +104,7 @@ def test_eval_multi_part_level_association(tmp_path, capsys, monkeypatch):
 
 
 def test_eval_multi_table_names_the_seeds_and_the_start(capsys, monkeypatch):
-    from common.commands.eval_multi import _print_table
+    from services.commands.eval_multi import _print_table
 
     monkeypatch.setenv("COLUMNS", "200")
     row = {"rmse": 4.0, "rmse_std": 0.1, "ms_per_frame": 10.0, "identities_kept": 1.0, "mota": 1.0, "idf1": 1.0,

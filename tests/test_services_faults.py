@@ -222,7 +222,7 @@ def test_a_query_for_an_unknown_frame_does_not_hold_up_the_others(bus_with):
 def test_bench_pipeline_fails_loudly_when_it_cannot_run():
     """480 s of frames would need 37 GiB prerendered: the bench says so in one line with a
     non-zero exit, before starting anything (it had printed fps 0 and exited 0)."""
-    p = subprocess.run([sys.executable, "-c", "import sys; from common.cli import main; sys.exit(main())",
+    p = subprocess.run([sys.executable, "-c", "import sys; from services.cli import main; sys.exit(main())",
                         "bench", "--pipeline", "--seconds", "480", "--no-viewer", "--json"],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 1, (p.stdout[-500:], p.stderr[-2000:])

@@ -129,7 +129,7 @@ def test_dead_tracker_or_router_ends_the_run_within_seconds(tmp_path, victim, si
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 def test_launcher_signal_stops_every_child(tmp_path, sig):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-c", "import sys; from common.cli import main; sys.exit(main())",
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from services.cli import main; sys.exit(main())",
                              "run", "--source", SOURCE, "--frames", "300", "--no-progress", "--out-dir", str(tmp_path)],
                             cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     watch = Watch()

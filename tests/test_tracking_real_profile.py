@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from common.cli import main
+from services.cli import main
 from common.runner import Tracker
 from common.settings import profile_for
 from common.sources import open_source

@@ -178,7 +178,7 @@ def test_track_is_bounded():
 
 
 def test_view_command(tmp_path, capsys):
-    from common.commands import view
+    from services.commands import view
 
     src = tmp_path / "run.mcap"
     _write_mcap(src, _messages(2))
@@ -190,7 +190,7 @@ def test_view_command(tmp_path, capsys):
     assert capsys.readouterr().out.strip() == str(tmp_path / "run.rrd")
     assert (tmp_path / "run.rrd").exists()
 
-    from common.cli import UsageError
+    from services.cli import UsageError
 
     notmcap = tmp_path / "notes.mcap"
     notmcap.write_text("hello")

@@ -1,11 +1,12 @@
-"""The ``polartrack`` command line: one sub-command per module in :mod:`common.commands`."""
+"""The ``polartrack`` command line (the top layer, above the library in common/ and the service
+shells): one sub-command per module in :mod:`services.commands`."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from common.commands import bench, benchmark, calibrate, demo, eval as eval_cmd, eval_multi, match, replay, run, study, track, track_multi, view
+from services.commands import bench, benchmark, calibrate, demo, eval as eval_cmd, eval_multi, match, replay, run, study, track, track_multi, view
 
 COMMANDS = {"demo": demo, "run": run, "replay": replay, "view": view, "track": track, "eval": eval_cmd, "calibrate": calibrate, "match": match, "bench": bench, "study": study,
             "eval-multi": eval_multi, "track-multi": track_multi, "benchmark": benchmark}

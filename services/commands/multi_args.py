@@ -13,7 +13,7 @@ import dataclasses
 
 import numpy as np
 
-from common.commands.common_args import box_arg
+from services.commands.common_args import box_arg
 
 MULTI_METHODS = ("epmcmc-elpda", "epmcmc-pda", "jpda-pf")
 """common.multitarget.METHODS, spelt out so that building the parser imports no filter code (tested equal)."""
@@ -52,7 +52,7 @@ def source_spec(args) -> str:
     """The source string, with ``--people K`` folded into a people source (``people:SEED:K``)."""
     spec = args.source
     if getattr(args, "people", None) is not None:
-        from common.cli import UsageError
+        from services.cli import UsageError
 
         if not is_people(spec):
             raise UsageError("--people is for the people[:SEED] source only")
@@ -64,7 +64,7 @@ def source_spec(args) -> str:
 
 def given_boxes(args) -> np.ndarray | None:
     """(T, 4) boxes from ``--init`` (flattened) or ``--init-file``; None when neither is given."""
-    from common.cli import UsageError
+    from services.cli import UsageError
     from common.multitarget import InitError, read_boxes
 
     init = getattr(args, "init", None)
@@ -84,7 +84,7 @@ def given_boxes(args) -> np.ndarray | None:
 
 def single_box(args):
     """The single-target filters' one box (None: the source's ground truth)."""
-    from common.cli import UsageError
+    from services.cli import UsageError
 
     boxes = given_boxes(args)
     if boxes is None:
@@ -98,7 +98,7 @@ def single_box(args):
 def multi_run(args, source, seed: int, particles: int | None):
     """The :class:`common.multitarget_runner.MultiRun` of the arguments, its boxes checked against the
     first frame (UsageError otherwise)."""
-    from common.cli import UsageError
+    from services.cli import UsageError
     from common.multitarget import InitError, MultiInit, body_model
     from common.multitarget_runner import MultiRun
     from common.sources import SourceError
@@ -122,7 +122,7 @@ def multi_run(args, source, seed: int, particles: int | None):
     except (InitError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     if getattr(args, "overrides", None):  # --set KEY=VALUE on the filter's config (common/multitarget/config.py)
-        from common.commands.common_args import apply_overrides
+        from services.commands.common_args import apply_overrides
 
         run = dataclasses.replace(run, config=apply_overrides(run.config, args.overrides))
     return run

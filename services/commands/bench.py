@@ -312,7 +312,7 @@ def measure_tracker(spec: str, seed: int = 0) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     if args.tracker is not None:
-        from common.cli import UsageError
+        from services.cli import UsageError
         from common.sources import SourceError
 
         try:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from common.commands import run as run_cmd
+from services.commands import run as run_cmd
 
 HELP = "run the pipeline on the synthetic scene (recording + Rerun file + tracking summary)"
 

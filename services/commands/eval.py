@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.commands.common_args import add_tracking_arguments, open_checked, point_estimate, settings_for, truth_centre
+from services.commands.common_args import add_tracking_arguments, open_checked, point_estimate, settings_for, truth_centre
 
 HELP = "track and score against ground truth (precision, AUC, error plots)"
 FILTERS = ("rbpf", "sir", "ml")
@@ -91,7 +91,7 @@ def plot_errors(run: dict, errors: dict, path: Path, title: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.cli import UsageError
+    from services.cli import UsageError
     from common.evaluation import centre_errors, score_run
     from common.runner import InitError
     from common.sources import SourceError

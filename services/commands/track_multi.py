@@ -16,7 +16,7 @@ HELP = "track several articulated people (EPMCMC+ELPDA, EPMCMC+PDA or JPDA-PF), 
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from common.commands.track import add_arguments as track_arguments
+    from services.commands.track import add_arguments as track_arguments
 
     track_arguments(p)
     p.set_defaults(filter="epmcmc-elpda")
@@ -24,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``track --filter ...`` with this command's argument names: one implementation of in-process
-    multi-target tracking (:func:`common.commands.track.run_multi`)."""
-    from common.commands.track import run_multi
+    multi-target tracking (:func:`services.commands.track.run_multi`)."""
+    from services.commands.track import run_multi
 
     return run_multi(args)

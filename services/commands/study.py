@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_seed(seed: int, frames: int | None) -> dict:
-    from common.commands.eval import evaluate
+    from services.commands.eval import evaluate
     from common.evaluation import centre_errors, recovered, reemergence_frame, score_run
     from common.settings import RECOVERY_PROPOSAL, profile_for
     from common.sources import SyntheticSource
@@ -107,7 +107,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.cli import UsageError
+    from services.cli import UsageError
 
     if args.seeds < 1 or args.workers < 1:
         raise UsageError("--seeds and --workers must be at least 1")

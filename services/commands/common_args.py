@@ -23,7 +23,7 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
                    help="video file, UAV123-format folder (img/ + groundtruth_rect.txt), camera:N, or synthetic[:SEED]"
                    + (", or people[:SEED] (the synthetic people scene, multi-target filters)" if multi_target else ""))
     if multi_target:
-        from common.commands.multi_args import add_multi_arguments
+        from services.commands.multi_args import add_multi_arguments
 
         add_multi_arguments(p)
     else:
@@ -49,7 +49,7 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
 
 def open_checked(args):
     """Open the source and the initial box, turning bad input into UsageError."""
-    from common.cli import UsageError
+    from services.cli import UsageError
     from common.sources import SourceError, open_source
 
     try:
@@ -58,7 +58,7 @@ def open_checked(args):
         raise UsageError(str(exc)) from None
     init = args.init
     if isinstance(init, list) or getattr(args, "init_file", None):  # the multi-target-capable --init / --init-file
-        from common.commands.multi_args import single_box
+        from services.commands.multi_args import single_box
 
         init = single_box(args)
     if init is None:
@@ -75,7 +75,7 @@ def open_checked(args):
 
 
 def settings_for(args, source, filter_name: str):
-    from common.cli import UsageError
+    from services.cli import UsageError
     from common.settings import profile_for
 
     if args.particles is not None and args.particles < 1:
@@ -95,7 +95,7 @@ def apply_overrides(settings, overrides: list[str]):
 
     from pydantic import ValidationError
 
-    from common.cli import UsageError
+    from services.cli import UsageError
 
     data = settings.model_dump()
     for item in overrides:
