@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import beta
 
 from common.detector.layout import N_ROWS
 from common.detector.resample import quantise_factor
@@ -51,12 +52,12 @@ class Detection:
     """The target's apparent scale s (relative to the first box) the detection was matched at."""
 
 
-def acceptance_threshold(false_alarms_per_s: float, dt: float, hypotheses: int, background) -> float:
+def acceptance_threshold(false_alarms_per_s: float, dt: float, hypotheses: int, background,
+                         orientations: int = N_ROWS) -> float:
     """The score the background exceeds with probability ``false_alarms_per_s * dt / (hypotheses *
-    N_ROWS)``: ``background`` is a (a, b) Beta of the scores where there is no target."""
-    from scipy.stats import beta
-
-    p = false_alarms_per_s * max(dt, 1e-3) / max(1, hypotheses * N_ROWS)
+    orientations)``: ``background`` is a (a, b) Beta of the scores where there is no target (of one
+    orientation; ``orientations=1`` for a Beta of the best score over all angles)."""
+    p = false_alarms_per_s * max(dt, 1e-3) / max(1, hypotheses * orientations)
     return float(beta.isf(min(max(p, 1e-15), 0.5), *background))
 
 
@@ -280,8 +281,5 @@ class Reacquirer:
             m, v = float(bg.mean()), float(bg.var())
             if v > 0 and m * (1 - m) > v:
                 c = m * (1 - m) / v - 1
-                from scipy.stats import beta
-
-                p = cfg.false_alarms_per_s * max(dt, 1e-3) / n
-                thr = max(thr, float(beta.isf(min(max(p, 1e-15), 0.5), m * c, (1 - m) * c)))
+                thr = max(thr, acceptance_threshold(cfg.false_alarms_per_s, dt, n, (m * c, (1 - m) * c), 1))
         return thr

@@ -23,7 +23,7 @@ from common.detector.client import DetectorClient, LocalDetector
 from common.detector.layout import SUPPORT_RADIUS_PX
 from common.reacquire import Detection, Reacquirer
 from common.scale import ScaleTracker
-from common.settings import TrackerSettings
+from common.settings import SYNTHETIC_BETA, TrackerSettings
 from common.sources import Frame
 from common.stabilise import CameraMotionEstimator
 from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
@@ -52,15 +52,24 @@ def check_init_box(box: tuple[float, float, float, float], width: int, height: i
                         f"{width}x{height} frame to build the template")
 
 
+def length_in_world(length_px: float, image_xy, homography: np.ndarray | None) -> float:
+    """``length_px`` image pixels at ``image_xy`` in world units (through ``homography``'s local scale)."""
+    if homography is None:
+        return float(length_px)
+    c = image_to_world(homography, np.asarray(image_xy, float))
+    d = float(abs(np.linalg.det(homography_jacobian(homography, c))))
+    return length_px / np.sqrt(d) if d > 0 and np.isfinite(d) else float(length_px)
+
+
 def target_length_world(init_box: tuple[float, float, float, float], homography: np.ndarray | None) -> float:
     """The initial box's long side in world units (pixels through ``homography``'s local scale)."""
     x, y, w, h = init_box
-    long_side = max(float(w), float(h))
-    if homography is None:
-        return long_side
-    c = image_to_world(homography, np.array([x + w / 2, y + h / 2]))
-    d = float(abs(np.linalg.det(homography_jacobian(homography, c))))
-    return long_side / np.sqrt(d) if d > 0 else long_side
+    return length_in_world(max(float(w), float(h)), (x + w / 2, y + h / 2), homography)
+
+
+def initial_vel_std(settings: TrackerSettings, length_world: float) -> float:
+    """The prior's velocity spread: ``init_vel_lengths`` target lengths per second if set, else ``init_vel_std``."""
+    return settings.init_vel_std if settings.init_vel_lengths is None else settings.init_vel_lengths * length_world
 
 
 def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, float],
@@ -71,9 +80,8 @@ def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, 
     initial velocity spread are taken in target lengths (the box's long side in world units)."""
     x, y, w, h = init_box
     length = target_length_world(init_box, homography)
-    vel_std = settings.init_vel_std if settings.init_vel_lengths is None else settings.init_vel_lengths * length
     initial = InitialState.from_image_point((x + w / 2, y + h / 2), homography, time=t0,
-                                            pos_std=settings.init_pos_std, vel_std=vel_std)
+                                            pos_std=settings.init_pos_std, vel_std=initial_vel_std(settings, length))
     upd = {} if settings.particles is None else {"n_particles": settings.particles}
     if settings.motion_noise_lengths is not None:
         q = (settings.motion_noise_lengths * length) ** 2
@@ -87,8 +95,6 @@ def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, 
 
 def _background_beta(settings: TrackerSettings) -> tuple[float, float]:
     """(a, b) of the likelihood's Beta for scores where there is no target (the synthetic fit by default)."""
-    from common.settings import SYNTHETIC_BETA
-
     lik = getattr(getattr(settings, settings.filter, None), "likelihood", None)
     if isinstance(lik, BetaRatioLikelihood):
         return (float(lik.a0), float(lik.b0))
@@ -264,19 +270,13 @@ class Tracker:
             r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
         if det is None:
             return None
-        self.scale.s = det.scale
-        self.scale.rate = 0.0
-        self.scale._prev_search = None
+        self.scale.restart(det.scale)
         self.factor = self.scale.factor()
-        xy = np.array([det.x, det.y])
-        d = float(abs(np.linalg.det(homography_jacobian(h, image_to_world(h, xy))))) if h is not None else 1.0
-        px_per_world = np.sqrt(d) if d > 0 and np.isfinite(d) else 1.0
-        length_world = self.scale.target_length_px / px_per_world
-        cfg, st = self.settings.reacquisition, self.settings
-        vel_std = st.init_vel_std if st.init_vel_lengths is None else st.init_vel_lengths * length_world
+        length_world = length_in_world(self.scale.target_length_px, (det.x, det.y), h)
         initial = InitialState.from_image_point(
             (det.x, det.y), h, time=None, theta=det.theta_deg, p_visible=1.0,
-            pos_std=cfg.grid_lengths * length_world / 4, vel_std=vel_std, theta_std=3.75)
+            pos_std=self.settings.reacquisition.grid_lengths * length_world / 4,
+            vel_std=initial_vel_std(self.settings, length_world), theta_std=3.75)
         self.filter.restart(initial)
         return det
 

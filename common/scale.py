@@ -107,6 +107,13 @@ class ScaleTracker:
         """(lo, hi): the scales s_t whose factor is not clipped (beyond, the matching cannot follow)."""
         return self.u / max(self.cfg.max_upsample, 1.0), self.u / self.cfg.min_factor
 
+    def restart(self, s: float) -> None:
+        """Start again at scale ``s`` (a re-acquisition at that scale): no growth rate, no previous search."""
+        self.s = float(s)
+        self.rate = 0.0
+        self._prev_search = None
+        self._clip()
+
     def _clip(self) -> None:
         """Keep s_t where the factor is not clipped (beyond, the matching scale cannot follow)."""
         lo, hi = self.scale_range()

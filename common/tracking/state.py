@@ -101,6 +101,8 @@ class Estimate:
 def _readonly(a: np.ndarray | None) -> np.ndarray | None:
     if a is None:
         return None
+    if isinstance(a, np.ndarray) and not a.flags.writeable and a.flags.owndata:
+        return a  # already a state's own read-only copy (dataclasses.replace of a state): no second copy
     a = np.array(a, copy=True)
     a.setflags(write=False)
     return a
