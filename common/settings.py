@@ -115,7 +115,7 @@ class TrackerSettings(BaseModel):
 
     filter: FilterName = Field("rbpf", description="rbpf (Pang), sir (Nelson) or ml (windowed search).")
     particles: int | None = Field(None, ge=1, description="Particles (rbpf, sir); None: the filter's default.")
-    seed: int = Field(0, description="Seed of the filter's random generator.")
+    seed: int = Field(0, ge=0, description="Seed of the filter's random generator.")
     rbpf: RBPFConfig = Field(default_factory=RBPFConfig)
     sir: SIRConfig = Field(default_factory=SIRConfig)
     ml: WindowedMLConfig = Field(default_factory=WindowedMLConfig)

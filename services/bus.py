@@ -11,8 +11,10 @@ from __future__ import annotations
 import json
 import logging
 import signal
+import sys
 import threading
 import time
+from pathlib import Path
 from typing import Literal
 
 import zenoh
@@ -99,8 +101,20 @@ class BusConfig(BaseModel):
         return key[len(prefix):] if key.startswith(prefix) else key
 
 
+class BusUnavailable(SystemExit):
+    """The Zenoh session could not be opened (no router at the endpoints, a bad certificate): the
+    process ends with this one-line message (exit status 1), not a traceback."""
+
+
 def open_session(bus: BusConfig) -> zenoh.Session:
-    return zenoh.open(bus.zenoh_config())
+    try:
+        return zenoh.open(bus.zenoh_config())
+    except zenoh.ZError as exc:
+        reason = str(exc).split("  at ")[0].strip()  # drop the Rust source location
+        where = ", ".join(bus.connect) or ", ".join(bus.listen) or "the default endpoints"
+        hint = " (is the router running? `polartrack run` starts one)" if bus.connect else ""
+        raise BusUnavailable(f"{Path(sys.argv[0]).stem or 'polartrack'}: error: cannot join the Zenoh bus at "
+                             f"{where}: {reason}{hint}") from None
 
 
 _IDENTITY = b""

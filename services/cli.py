@@ -4,6 +4,7 @@ shells): one sub-command per module in :mod:`services.commands`."""
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 from services.commands import bench, benchmark, calibrate, demo, eval as eval_cmd, eval_multi, match, replay, run, study, track, track_multi, view
@@ -16,8 +17,18 @@ class UsageError(Exception):
     """A bad flag, path or file: reported as one line on stderr with exit status 2."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, reading a value that starts with a minus and a digit as a value, not an option:
+    ``--init -20,-20,15,12`` (a box partly left of the frame) or ``--set x=-1`` as ``-5``."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # argparse's own matcher takes only single numbers (-5, -.5); no option here starts with a digit
+        self._negative_number_matcher = re.compile(r"^-\.?\d[\d.eE+\-,;]*$")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="polartrack",
         description="Track a known ground vehicle in aerial video (DTCWT polar matching).",
     )

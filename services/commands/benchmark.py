@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from services.commands.common_args import positive_int, seed_int
+
 HELP = "benchmark on UAV123/OTB sequence folders (precision, success AUC, fps; --peers: CSRT, KCF, NanoTrack)"
 REPO = Path(__file__).resolve().parents[2]
 PEERS_TOOL = REPO / "tools" / "opencv_baselines.py"
@@ -48,10 +50,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--peers", action="store_true", help="also OpenCV's CSRT, KCF and NanoTrack v2 (isolated environment)")
     p.add_argument("--nanotrack-dir", metavar="DIR", default="../shared/models/nanotrack-v2",
                    help="NanoTrack v2's ONNX files for --peers (default ../shared/models/nanotrack-v2)")
-    p.add_argument("--frames", type=int, metavar="N", help="only the first N frames of each sequence")
+    p.add_argument("--frames", type=positive_int, metavar="N", help="only the first N frames of each sequence")
     p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="PolarTrack's filter")
-    p.add_argument("--particles", type=int, metavar="N", help="number of particles (rbpf, sir)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the filter's random generator")
+    p.add_argument("--particles", type=positive_int, metavar="N", help="number of particles (rbpf, sir)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the filter's random generator")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                    help="override a tracker setting by its dotted name (repeatable), as on track and eval")
     p.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")

@@ -11,6 +11,8 @@ import argparse
 import json
 from pathlib import Path
 
+from services.commands.common_args import seed_int
+
 HELP = "fit Beta likelihood parameters from a source with ground truth (Pang Fig. 5)"
 
 
@@ -18,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", metavar="SOURCE", help="UAV123-format folder or synthetic[:SEED]")
     p.add_argument("--frames", type=int, default=100, help="frames to sample (default 100)")
     p.add_argument("--per-frame", type=int, default=20, help="visible samples per frame (5x as many background)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the sampling positions")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the sampling positions")
     p.add_argument("--out", metavar="FILE.png", help="histogram plot (default recordings/calibration-SOURCE.png)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 

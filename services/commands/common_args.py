@@ -7,6 +7,28 @@ import argparse
 import numpy as np
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: a whole number of at least 1 (``--frames``, ``--particles``)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
+    return n
+
+
+def seed_int(text: str) -> int:
+    """An argparse type: a random generator's seed, a whole number of at least 0."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"a seed is at least 0, got {n}")
+    return n
+
+
 def box_arg(text: str) -> tuple[float, float, float, float]:
     try:
         vals = tuple(float(v) for v in text.split(","))
@@ -36,9 +58,9 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
                        help="filters to run side by side: rbpf, sir, ml (comma separated)")
     else:
         p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="tracking filter")
-    p.add_argument("--particles", type=int, metavar="N", help="number of particles (rbpf, sir)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the filter's random generator")
-    p.add_argument("--frames", type=int, metavar="N", help="only the first N frames")
+    p.add_argument("--particles", type=positive_int, metavar="N", help="number of particles (rbpf, sir)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the filter's random generator")
+    p.add_argument("--frames", type=positive_int, metavar="N", help="only the first N frames")
     p.add_argument("--ml-threshold", type=float, metavar="T", help="windowed ML detection threshold (default 0.6)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                    help="override a tracker setting by its dotted name (repeatable), e.g. --set stabilise=off "

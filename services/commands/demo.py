@@ -9,12 +9,13 @@ from __future__ import annotations
 import argparse
 
 from services.commands import run as run_cmd
+from services.commands.common_args import seed_int
 
 HELP = "run the pipeline on the synthetic scene (recording + Rerun file + tracking summary)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seed", type=int, default=0, help="scene and filter seed")
+    p.add_argument("--seed", type=seed_int, default=0, help="scene and filter seed")
     run_cmd.add_arguments(p, demo=True)
 
 

@@ -18,7 +18,7 @@ import argparse
 import json
 import sys
 
-from services.commands.common_args import apply_overrides
+from services.commands.common_args import apply_overrides, positive_int, seed_int
 
 HELP = "run the multi-process pipeline (ingest, detector, tracker, recorder, viewer)"
 
@@ -31,11 +31,11 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
                        help="video file, UAV123-format folder, camera:N, synthetic[:SEED] or people[:SEED] "
                        "(the synthetic people scene, multi-target filters)")
         add_multi_arguments(p)
-        p.add_argument("--particles", type=int, metavar="N", help="particles (rbpf, sir)")
-        p.add_argument("--seed", type=int, default=0, help="seed of the filter's generator")
+        p.add_argument("--particles", type=positive_int, metavar="N", help="particles (rbpf, sir)")
+        p.add_argument("--seed", type=seed_int, default=0, help="seed of the filter's generator")
         p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                        help="override a tracker setting by its dotted name (repeatable), as on track")
-    p.add_argument("--frames", type=int, metavar="N", help="only the first N frames")
+    p.add_argument("--frames", type=positive_int, metavar="N", help="only the first N frames")
     p.add_argument("--pace", choices=["consumer", "realtime", "max"], default="consumer",
                    help="consumer: paced by the tracker, nothing dropped (default); realtime: source rate")
     p.add_argument("--no-viewer", action="store_true", help="do not write the Rerun file")

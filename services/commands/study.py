@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from services.commands.common_args import positive_int
+
 HELP = "reproduce the papers' claims on the synthetic scene over many seeds"
 
 METHODS = {  # name: (filter, profile_for keywords, updates of that filter's config)
@@ -33,7 +35,7 @@ METHODS = {  # name: (filter, profile_for keywords, updates of that filter's con
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", type=int, default=20, help="scene seeds 0..N-1 (default 20)")
-    p.add_argument("--frames", type=int, help="frames per scene (default: the scene's length)")
+    p.add_argument("--frames", type=positive_int, help="frames per scene (default: the scene's length)")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes")
     p.add_argument("--out-dir", default="recordings/study", help="where to write the PNG and JSON")
     p.add_argument("--json", action="store_true", help="print one JSON object")

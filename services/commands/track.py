@@ -57,19 +57,30 @@ def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int
     from common.runner import InitError
     from common.sources import SourceError
 
-    out = open(args.out, "w", newline="") if args.out else sys.stdout
+    total = None if source.live else len(source)
+    bar = tqdm(total=total, unit="frame", disable=args.no_progress, file=sys.stderr, desc=source.name)
+    it = iter(rows)
     try:
-        writer = csv.writer(out)
-        writer.writerow(header)
-        total = None if source.live else len(source)
-        for frame_rows in tqdm(rows, total=total, unit="frame", disable=args.no_progress, file=sys.stderr,
-                               desc=source.name):
-            writer.writerows(frame_rows)
+        # the first frame starts the tracker (a bad box or source fails there): nothing is written,
+        # not even the header, until it has worked
+        first = next(it, None)
+        out = open(args.out, "w", newline="") if args.out else sys.stdout
+        try:
+            writer = csv.writer(out)
+            writer.writerow(header)
+            if first is not None:
+                writer.writerows(first)
+                bar.update(1)
+            for frame_rows in it:
+                writer.writerows(frame_rows)
+                bar.update(1)
+        finally:
+            if args.out:
+                out.close()
     except (InitError, MultiInitError, SourceError) as exc:
         raise UsageError(str(exc)) from None
     finally:
-        if args.out:
-            out.close()
+        bar.close()
     return 0
 
 
