@@ -1,0 +1,1 @@
+"""Recordings (MCAP): what a file holds (:mod:`common.record.info`)."""
