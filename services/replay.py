@@ -16,48 +16,89 @@ import time
 from pathlib import Path
 
 from common.msgs import Estimate, FrameInfo, MultiEstimate
-from common.recording import compare_estimates, read_recording
+from common.validation import FrameOrder, Invalid, check_frame_info, decode
+from common.recording import ReadReport, RecordingError, compare_estimates, read_recording, stream_messages
 from services.bus import BusConfig, Inbox, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
 from services.launcher import client_args, free_ports, router_config
 
 
-def republish(path: str, bus: BusConfig, speed: float | None = 1.0) -> dict:
-    """Publish every recorded message again; ``speed`` None = as fast as possible."""
-    rec = read_recording(path)
-    items = sorted(((t, topic, data) for topic, msgs in rec.messages.items() for t, data in msgs),
-                   key=lambda x: x[0])
+def republish(path: str, bus: BusConfig, speed: float | None = 1.0, warn=None) -> dict:
+    """Publish every recorded message again, streamed from the file in its order (one chunk in
+    memory at a time), paced by the log times; ``speed`` None = as fast as possible. A file cut
+    short is published up to the cut; untrustworthy records are skipped and counted."""
+    report = ReadReport()
     sent = 0
+    topics: set[str] = set()
     with open_session(bus) as session:
         pubs = {}
-        t_first = items[0][0] if items else 0
+        t_first = None
         wall0 = time.monotonic()
-        for t, topic, data in items:
+        for topic, t, data in stream_messages(path, None, report):
+            if t_first is None:
+                t_first = t
             if speed:
                 delay = wall0 + (t - t_first) / 1e9 / speed - time.monotonic()
                 if delay > 0:
-                    time.sleep(delay)
+                    time.sleep(min(delay, 60.0))  # a garbled log time never stalls the replay for long
             pub = pubs.get(topic) or pubs.setdefault(topic, publisher(session, bus.key(topic)))
             pub.put(data, attachment=ns_attachment(t))
+            topics.add(topic)
             sent += 1
-    return {"messages": sent, "topics": len(rec.messages)}
+    _warn(path, report, warn)
+    if sent == 0 and (report.cut or report.skipped):
+        raise RecordingError(f"{path}: not a readable MCAP file (no message could be read: "
+                             f"{report.cut or report.skipped})")
+    return {"messages": sent, "topics": len(topics), **_read_stats(report)}
+
+
+def _read_stats(report: ReadReport) -> dict:
+    out = {}
+    if report.cut:
+        out["cut"] = report.cut
+    if report.skipped:
+        out["records_skipped"] = dict(report.skipped)
+    if report.malformed:
+        out["malformed"] = dict(report.malformed)
+    return out
+
+
+def _warn(path: str, report: ReadReport, warn) -> None:
+    lines = []
+    if report.cut:
+        lines.append(f"warning: {path} is cut short ({report.cut}): read {report.messages} messages "
+                     "up to the last complete record")
+    if report.skipped:
+        lines.append(f"warning: {path}: records skipped: "
+                     + ", ".join(f"{k} {v}" for k, v in sorted(report.skipped.items())))
+    for line in lines:
+        (warn or (lambda m: print(m, file=sys.stderr)))(line)
 
 
 def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> dict:
-    rec = read_recording(path)
+    rec = read_recording(path, skip=("frame/image",))  # the frames are streamed below
     run = rec.run
-    images = rec.messages.get("frame/image", [])
-    infos = [(t, d) for t, d in rec.messages.get("frame/info", [])]
     multi = run.get("multi_json") or None
     topic, cls = ("track/multi_estimate", MultiEstimate) if multi else ("track/estimate", Estimate)
     recorded = rec.decoded(topic)
     wanted = {e.frame_index for e in recorded}
+    if not multi:
+        from common.recording import run_settings
+
+        run_settings(rec)  # garbled settings or box: one line here, not a tracker dying later
+    try:
+        settings_json = json.loads(run.get("settings_json") or "")
+        init_box = json.loads(run["init_box"]) if run.get("init_box") else None
+        if not isinstance(settings_json, dict):
+            raise ValueError("not a JSON object")
+    except (ValueError, TypeError) as exc:
+        raise RecordingError(f"{path}: the run metadata's settings or init box are not valid JSON "
+                             f"({type(exc).__name__}: {str(exc)[:100]})") from None
     stream = f"retrack{int(time.time() * 1000) % 1000000}"
     hub = free_ports(1)[0]
     tmp = tempfile.TemporaryDirectory(prefix="polartrack-retrack-")
     logs = Path(log_dir or tmp.name)
     cfg = Path(tmp.name) / "tracker.json"
-    init_box = json.loads(run["init_box"]) if run.get("init_box") else None
-    cfg.write_text(json.dumps({"init_box": init_box or None, "settings": json.loads(run["settings_json"]),
+    cfg.write_text(json.dumps({"init_box": init_box or None, "settings": settings_json,
                                "multi": multi}))
     procs = {}
     bus = router_config(hub, stream)
@@ -75,38 +116,67 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
                 raise RuntimeError("detector/tracker did not start")
             pub_img = publisher(session, bus.key("frame/image"))
             pub_info = publisher(session, bus.key("frame/info"))
-            image_by_time = {}
-            for t, d in images:
-                image_by_time.setdefault(t, []).append(d)
             deadline = time.monotonic() + timeout
             last_sent = -1
-            for t, d in infos:
-                info = FrameInfo.FromString(d)
-                if info.end_of_stream:
-                    break
-                if info.index not in wanted:
-                    continue  # the recorded (live) run skipped it: feed the same frames
+            order = FrameOrder()
+            held: dict[int, list[bytes]] = {}  # log time -> frame images not yet sent (bounded)
+
+            def collect() -> None:
+                while (s := inbox.pop("estimate")) is not None:
+                    try:
+                        e = cls.FromString(payload_bytes(s))
+                    except Exception:  # noqa: BLE001 - nothing on the bus stops the comparison
+                        continue
+                    new[e.frame_index] = e
+
+            def send(t: int, d: bytes, images: list[bytes]) -> None:
+                nonlocal last_sent
+                try:
+                    info = decode(FrameInfo, d, "frame/info")
+                    check_frame_info(info, order)
+                except Invalid:
+                    rec.report.bad("frame/info")
+                    return
+                if info.end_of_stream or info.index not in wanted:
+                    return  # the recorded (live) run skipped it: feed the same frames
                 while last_sent >= 0 and last_sent not in new and time.monotonic() < deadline:
                     inbox.wait(0.1)
-                    while (s := inbox.pop("estimate")) is not None:
-                        e = cls.FromString(payload_bytes(s))
-                        new[e.frame_index] = e
-                for img in image_by_time.get(t, []):
+                    collect()
+                for img in images:
                     pub_img.put(img, attachment=ns_attachment(t))
                 pub_info.put(d, attachment=ns_attachment(t))
                 last_sent = info.index
+
+            # streamed in file order: a frame's image and info share its log time; an info is sent
+            # with the images of its time read before it, or (one group later) just after it
+            group_t, group_infos = None, []
+            for rtopic, t, d in rec.stream(["frame/image", "frame/info"]):
+                if t != group_t:
+                    for gt, gd in group_infos:
+                        send(gt, gd, held.pop(gt, []))
+                    group_t, group_infos = t, []
+                    while len(held) > 8:
+                        held.pop(next(iter(held)))
+                if rtopic == "frame/image":
+                    held.setdefault(t, []).append(d)
+                else:
+                    group_infos.append((t, d))
+            for gt, gd in group_infos:
+                send(gt, gd, held.pop(gt, []))
             while last_sent >= 0 and last_sent not in new and time.monotonic() < deadline:
                 inbox.wait(0.1)
-                while (s := inbox.pop("estimate")) is not None:
-                    e = cls.FromString(payload_bytes(s))
-                    new[e.frame_index] = e
+                collect()
             pub_info.put(FrameInfo(end_of_stream=True, index=last_sent + 1).SerializeToString())
             sub.undeclare()
         if multi:
             from common.multitarget_runner import compare_multi
 
-            return compare_multi(recorded, [new[k] for k in sorted(new)])
-        return compare_estimates(recorded, [new[k] for k in sorted(new)])
+            out = compare_multi(recorded, [new[k] for k in sorted(new)])
+        else:
+            out = compare_estimates(recorded, [new[k] for k in sorted(new)])
+        if rec.report.malformed:
+            out["malformed"] = dict(rec.report.malformed)
+        return out
     finally:
         for p in procs.values():
             if p.poll() is None:

@@ -5,6 +5,12 @@ times real time, or ``--max``). ``--retrack`` re-runs the tracker against the re
 with a live detector; ``--offline`` re-runs it from the recorded detector replies with no
 detector at all. Both report whether every estimate equals the recorded one (same seed and
 config give bit-identical estimates).
+
+The file is streamed (the frame images one chunk at a time; the other topics, a few kB a frame,
+are held for the comparison). A file cut short (recorder killed, disk full) is replayed up to the
+cut with one warning line; chunks that fail their CRC, state more than 64 MiB decompressed or do
+not decompress are skipped and counted; messages that do not decode are skipped and counted;
+garbled run settings or init box end the replay with one line saying so (exit 2).
 """
 
 from __future__ import annotations
@@ -50,6 +56,11 @@ def run(args: argparse.Namespace) -> int:
             out = {"mode": "republish", **republish(args.mcap, bus, None if args.max else args.speed)}
     except RecordingError as exc:
         raise UsageError(str(exc)) from None
+    except KeyboardInterrupt:
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever a hostile file holds: one line, never a traceback
+        first = (str(exc).splitlines() or [""])[0][:300]
+        raise UsageError(f"{args.mcap}: replay failed ({type(exc).__name__}: {first})") from None
     if args.json:
         print(json.dumps(out))
     elif "identical" in out:
@@ -59,4 +70,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"first mismatched frames: {out['mismatched']}")
     else:
         print(f"republished {out['messages']} messages on {out['topics']} topics")
+    if not args.json and out.get("malformed"):
+        print("malformed messages skipped: " + ", ".join(f"{k} {v}" for k, v in sorted(out["malformed"].items())))
     return 0 if out.get("identical", True) else 1
