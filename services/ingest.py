@@ -157,6 +157,19 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
         first = True
         segments = SegmentPopulator(write=True)
+        listening = True
+
+        def stop_listening() -> None:
+            """Real-time and max pacing read no estimate after the first frame: the subscriptions
+            go (their boxes held the last 4,096 estimates, never read: ingest grew ~30 MB in a
+            soak), and what they held with them."""
+            nonlocal listening
+            if listening:
+                sub.undeclare()
+                sub_multi.undeclare()
+                for box in inbox.boxes.values():
+                    box.clear()
+                listening = False
 
         def wait_for_estimate(upto: int) -> None:
             """Until frame ``upto`` or a later one is estimated (consumer pacing, and the first
@@ -216,6 +229,8 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
                 # restarted here, not at the next frame, so that frame 1 is never counted late).
                 wait_for_estimate(0)
                 clock.reset()
+            if cfg.pace != "consumer":
+                stop_listening()
             first = False
         eos = FrameInfo(index=index + 1, end_of_stream=True, source=source.name, total_frames=total,
                         capture_ns=last_ns)
@@ -224,8 +239,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         log.info("published %d frames", c["published"])
         time.sleep(0.1)
         token.undeclare()
-        sub.undeclare()
-        sub_multi.undeclare()
+        stop_listening()
     return c
 
 

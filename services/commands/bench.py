@@ -34,6 +34,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="benchmark the in-process tracker with the real-footage profile on SOURCE instead (default "
                         "exit:0: 1280x720, the car leaving the frame and coming back, so the re-acquisition search "
                         "runs); reported beside the same run with re-acquisition off")
+    p.add_argument("--soak", action="store_true",
+                   help="--pipeline: a long run's memory: the frames rendered live (memory independent of "
+                        "the length), the recorder keeping one frame image a second (disk: ~2.7 MB/s instead "
+                        "of 80), and every service's RSS sampled (start, end, max, slope) against a bound")
+    p.add_argument("--rss-every", type=float, default=5.0, metavar="S",
+                   help="--pipeline: sample every service's RSS every S seconds")
     p.add_argument("--pace", choices=["realtime", "consumer"], default="realtime",
                    help="--pipeline: frames at 30 fps (a slow pipeline skips), or every frame paced by the "
                         "tracker (the CPU per frame of each service, without skipping)")
@@ -145,15 +151,84 @@ def _naive_rate(frame: np.ndarray, cx: float, cy: float, xy: np.ndarray, repeats
     return len(xy) / (ms / 1e3)
 
 
+RSS_BOUND_MB = 40.0
+"""A service's RSS may grow at most this much from its value a tenth into the run to its end
+(what ``bench --pipeline --soak`` checks; the start-up's imports and first frames come before)."""
+
+
+class RssSampler:
+    """Every ``every`` seconds, the resident memory (MiB) of each of the pipeline's processes
+    (``/proc/PID/status`` VmRSS via psutil), in a thread; :meth:`summary` gives per service the
+    samples' start, end, max, and from a tenth into the run (after the start-up) to the end the
+    slope (MiB per hour, least squares) and the growth. A restarted service keeps one series (its new process's)."""
+
+    def __init__(self, pipe, every: float = 5.0):
+        import threading
+
+        self.pipe, self.every = pipe, every
+        self.samples: dict[str, list[tuple[float, float]]] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="rss", daemon=True)
+        self.t0 = time.monotonic()
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join(5)
+
+    def sample(self) -> None:
+        import psutil
+
+        now = time.monotonic() - self.t0
+        procs = dict(getattr(self.pipe, "procs", {}))
+        procs["launcher"] = None
+        for name, proc in procs.items():
+            try:
+                p = psutil.Process() if proc is None else psutil.Process(proc.pid)
+                if proc is not None and proc.poll() is not None:
+                    continue
+                rss = p.memory_info().rss / 2**20
+            except (psutil.Error, OSError):
+                continue
+            self.samples.setdefault(name, []).append((now, rss))
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.every):
+            self.sample()
+
+    def summary(self, bound_mb: float = RSS_BOUND_MB) -> dict:
+        out = {}
+        for name, rows in sorted(self.samples.items()):
+            if len(rows) < 2:
+                continue
+            t = np.array([r[0] for r in rows])
+            m = np.array([r[1] for r in rows])
+            tenth = min(int(np.searchsorted(t, t[0] + 0.1 * (t[-1] - t[0]))), len(t) - 1)
+            tt, mm = t[tenth:], m[tenth:]  # after the start-up
+            slope = float(np.polyfit(tt, mm, 1)[0]) * 3600.0 if len(tt) > 1 and tt[-1] > tt[0] else 0.0
+            growth = float(m[-1] - m[tenth])
+            out[name] = {"start_mb": round(float(m[0]), 1), "tenth_mb": round(float(m[tenth]), 1),
+                         "end_mb": round(float(m[-1]), 1), "max_mb": round(float(m.max()), 1),
+                         "slope_mb_per_h": round(slope, 1), "growth_mb": round(growth, 1),
+                         "samples": len(rows), "within_bound": growth <= bound_mb}
+        return out
+
+
 def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool = True, seed: int = 0,
-                     pace: str = "realtime", prerender: bool = True) -> dict:
+                     pace: str = "realtime", prerender: bool = True, soak: bool = False,
+                     rss_every: float = 5.0) -> dict:
     """The live pipeline: synthetic frames published in real time (30 fps) for ``seconds``
     (``pace="consumer"``: every frame, as fast as the tracker goes). CPU per service is its
     process CPU time over the run; ``launcher`` is this process (watching the estimates).
     ``prerender`` (default): the ingest service renders the frames before the run, so that what is
     measured is the pipeline, not the synthetic scene's renderer, a test-signal generator that takes
     about 22 ms of a core a frame (a camera or a video file costs a few); the frames published are
-    the same, bit for bit. ``bench --pipeline --render-live`` measures with the renderer."""
+    the same, bit for bit. ``bench --pipeline --render-live`` measures with the renderer.
+    ``soak``: rendered live, one frame image a second recorded, and the services' RSS reported
+    against :data:`RSS_BOUND_MB` (``rss``; every run samples it every ``rss_every`` seconds)."""
     import tempfile
 
     import psutil
@@ -164,6 +239,8 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
     from services.launcher import Pipeline
 
     frames = max(2, int(round(seconds * 30)))
+    if soak:
+        prerender = False
     if prerender:  # before building a long scene (23 s for 480 s of frames) and starting services
         import inspect
 
@@ -179,9 +256,12 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
     settings = profile_for(src, seed=seed, particles=particles)
     with tempfile.TemporaryDirectory(prefix="polartrack-bench-") as tmp:
         with Pipeline(spec, src.frame(0).truth.box, settings, out_dir=tmp, frames=frames, pace=pace,
-                      viewer=viewer, prerender=prerender) as pipe:
+                      viewer=viewer, prerender=prerender,
+                      recorder_options={"image_every_s": 1.0} if soak else None) as pipe:
             cpu0 = sum(psutil.Process().cpu_times()[:2])
-            result = pipe.run(progress=False, timeout=seconds * 4 + 120)
+            with RssSampler(pipe, rss_every) as rss:
+                result = pipe.run(progress=False, timeout=seconds * 4 + 120)
+                rss.sample()
             launcher_s = sum(psutil.Process().cpu_times()[:2]) - cpu0
             statuses = {k: v for k, v in pipe.statuses.items()}
             steady = steady_cpu(pipe.status_log)
@@ -189,13 +269,20 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
             step = np.asarray(pipe.step_ms, float)
             skipped = pipe.skipped
             failure = pipeline_failure(result, pipe)
+        if failure is None and soak:
+            out_of_bound = [k for k, v in rss.summary().items() if not v["within_bound"]]
+            if out_of_bound:
+                failure = (f"RSS grew more than {RSS_BOUND_MB:.0f} MB after the first tenth of the run: "
+                           + ", ".join(f"{k} +{rss.summary()[k]['growth_mb']} MB" for k in out_of_bound))
         if failure is None:
-            rec = read_recording(result.mcap)
-            recorded_images = len(rec.messages.get("frame/image", []))
+            rec = read_recording(result.mcap, topics=("detector/reply",))  # the frames counted, not held
+            recorded_images = rec.counts.get("frame/image", 0)
             query_ms = np.array([r.score_ms for r in rec.decoded("detector/reply") if r.count > 1], float)
         else:
             recorded_images, query_ms = 0, np.array([], float)
     published = statuses.get("ingest").published if "ingest" in statuses else frames
+    if soak:  # one image a second recorded by design
+        recorded_images = published
     cpu_s = {k: v.cpu_s for k, v in sorted(statuses.items())} | {"launcher": launcher_s}
     return {
         "frames": frames, "source": spec, "particles": particles, "viewer": viewer, "pace": pace,
@@ -216,6 +303,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
         "mean_err": None if result.mean_err is None else round(result.mean_err, 2),
         "returncodes": result.returncodes,
         "failure": failure, "restarts": result.restarts, "rejected": result.rejected,
+        "soak": soak, "rss_bound_mb": RSS_BOUND_MB, "rss": rss.summary(),
     } | meets_targets(result.fps, lat, published - recorded_images,
                       int(skipped) + (int(statuses["ingest"].dropped) if "ingest" in statuses else 0))
 
@@ -323,7 +411,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.pipeline:
         result = measure_pipeline(args.seconds, args.particles, viewer=not args.no_viewer, seed=args.seed,
-                                  pace=args.pace, prerender=not args.render_live)
+                                  pace=args.pace, prerender=not args.render_live, soak=args.soak,
+                                  rss_every=args.rss_every)
         print(json.dumps(result) if args.json else "\n".join(f"{k:<30} {v}" for k, v in result.items()))
         if result.get("failure"):
             import sys
