@@ -66,7 +66,8 @@ class ScaleSettings(BaseModel):
                               "grown 16x beyond u is matched at 1/16 resolution, no less): with the upsampling, a "
                               "64x range of apparent size.")
     steps_per_octave: int = Field(12, ge=1, description="k is quantised to 2^(n / this) (k = 1 exactly near 1).")
-    search_interval_s: float = Field(0.1, gt=0, description="Seconds between two scale searches.")
+    search_interval_s: float = Field(0.2, gt=0, description="Seconds between two scale searches (the growth rate "
+                                     "extrapolates between them).")
     search_ratio: float = Field(1.12, gt=1, description="Scales tried: s / ratio, s, s * ratio.")
     search_max_steps: int = Field(2, ge=0, description="When the best of the three is at an end, move the three "
                                   "scales that way, at most this many steps (a fast-growing target).")
