@@ -7,14 +7,11 @@ import argparse
 import re
 import sys
 
+from services.commands.errors import UsageError
 from services.commands import bench, benchmark, calibrate, demo, eval as eval_cmd, eval_multi, info, match, replay, run, study, track, track_multi, view
 
 COMMANDS = {"demo": demo, "run": run, "replay": replay, "view": view, "track": track, "eval": eval_cmd, "calibrate": calibrate, "match": match, "bench": bench, "study": study,
             "eval-multi": eval_multi, "track-multi": track_multi, "benchmark": benchmark, "info": info}
-
-
-class UsageError(Exception):
-    """A bad flag, path or file: reported as one line on stderr with exit status 2."""
 
 
 class _Parser(argparse.ArgumentParser):

@@ -10,7 +10,7 @@ import pytest
 
 from services.cli import main
 from common.msgs import pack
-from services.commands.multi_args import boxes_arg
+from services.commands.common_args import boxes_arg
 from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg, same_multi_estimate, track_frames
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
 from common.sources import PeopleSource, SourceError, open_source
@@ -140,7 +140,7 @@ def test_set_overrides_the_multi_target_config(tmp_path, capsys):
 
 
 def test_the_cli_names_the_multi_target_filters_as_the_library_does():
-    from services.commands.multi_args import MULTI_METHODS
+    from services.commands.common_args import MULTI_METHODS
     from common.multitarget import METHODS
 
     assert tuple(MULTI_METHODS) == tuple(METHODS)

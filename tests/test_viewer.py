@@ -190,7 +190,7 @@ def test_view_command(tmp_path, capsys):
     assert capsys.readouterr().out.strip() == str(tmp_path / "run.rrd")
     assert (tmp_path / "run.rrd").exists()
 
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
 
     notmcap = tmp_path / "notes.mcap"
     notmcap.write_text("hello")

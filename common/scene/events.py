@@ -20,7 +20,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from common.sources import Frame, GroundTruth, Source
+from common.sources.base import Frame, GroundTruth, Source
 
 
 def _canvas(seed: int, width: int, height: int) -> tuple[np.ndarray, tuple[float, float, float, float]]:

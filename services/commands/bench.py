@@ -400,7 +400,7 @@ def measure_tracker(spec: str, seed: int = 0) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     if args.tracker is not None:
-        from services.cli import UsageError
+        from services.commands.errors import UsageError
         from common.sources import SourceError
 
         try:

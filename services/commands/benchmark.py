@@ -61,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def open_sequences(args) -> list:
     """Every SEQ_DIR opened and checked before anything runs: (source, first box, settings)."""
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from services.commands.common_args import settings_for
     from common.sources import SourceError, open_source
 
@@ -86,7 +86,7 @@ def open_sequences(args) -> list:
 
 def peer_command(args) -> list[str]:
     """The ``uv run --isolated ...`` prefix of the peers' tool, after checking what it needs."""
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
 
     missing = [str(Path(args.nanotrack_dir) / f) for f in NANOTRACK_FILES if not (Path(args.nanotrack_dir) / f).is_file()]
     if missing:
@@ -122,7 +122,7 @@ def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float, dict
 def run_peers(prefix: list[str], spec: str, init, args, n_frames: int, bar) -> dict:
     """The peers' output (tools/opencv_baselines.py's JSON) on one sequence, ``bar`` following its
     'progress N' lines."""
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
 
     cmd = [*prefix, str(Path(spec).resolve()), "--init", ",".join(repr(float(v)) for v in init),
            "--frames", str(n_frames), "--nanotrack-dir", str(Path(args.nanotrack_dir).resolve()), "--progress"]
@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
 
     from common.benchmark import as_boxes, mean_scores, score_boxes
     from common.benchmark_plots import plot_curves, plot_errors_over_time
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from common.runner import InitError
     from common.sources import SourceError
 

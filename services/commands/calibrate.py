@@ -27,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from common.calibration import calibrate, plot_calibration
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from common.sources import SourceError, open_source
 
     if args.frames < 1 or args.per_frame < 1:

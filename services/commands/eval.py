@@ -91,7 +91,7 @@ def plot_errors(run: dict, errors: dict, path: Path, title: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from common.evaluation import centre_errors, score_run
     from common.runner import InitError
     from common.sources import SourceError

@@ -196,7 +196,7 @@ def _print_table(summary: dict, wins: float, n: int, sweeps: dict, plots: list[s
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from common.multitarget import METHODS
     from common.multitarget.metrics import paired_difference
 

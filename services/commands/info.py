@@ -17,7 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from common.record.info import InfoError, format_info, recording_info
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
 
     try:
         info = recording_info(args.file)

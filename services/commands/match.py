@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from common.detector import PolarMatcher, Template, prepare_frame
     from common.detector.layout import SUPPORT_RADIUS_PX
     from common.detector.matcher import ANGLES_DEG

@@ -36,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from common.recording import RecordingError, offline_retrack
 
     if args.speed is not None and args.speed <= 0:

@@ -25,7 +25,7 @@ HELP = "run the multi-process pipeline (ingest, detector, tracker, recorder, vie
 
 def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     if not demo:
-        from services.commands.multi_args import add_multi_arguments
+        from services.commands.common_args import add_multi_arguments
 
         p.add_argument("--source", required=True, metavar="SRC",
                        help="video file, UAV123-format folder, camera:N, synthetic[:SEED] or people[:SEED] "
@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
 def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, particles, seed: int,
             multi=None) -> int:
     """Run the pipeline; ``multi`` (a MultiRun) for the multi-target filters."""
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from common.runner import InitError, check_init_box
     from common.settings import profile_for
     from common.sources import SourceError, open_source
@@ -120,10 +120,10 @@ def _launch(args, source_spec: str, init, settings, multi) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.commands.multi_args import MULTI_METHODS, multi_run, single_box, source_spec
+    from services.commands.common_args import MULTI_METHODS, multi_run, single_box, source_spec
 
     if args.filter in MULTI_METHODS:
-        from services.cli import UsageError
+        from services.commands.errors import UsageError
         from common.sources import SourceError, open_source
 
         spec = source_spec(args)

@@ -109,7 +109,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
 
     if args.seeds < 1 or args.workers < 1:
         raise UsageError("--seeds and --workers must be at least 1")

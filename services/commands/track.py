@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.commands.multi_args import MULTI_METHODS
+    from services.commands.common_args import MULTI_METHODS
     from common.runner import track_frames
 
     if args.filter in MULTI_METHODS:
@@ -52,7 +52,7 @@ def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int
     a progress bar; a bad initialisation or source met on the way is a usage error."""
     from tqdm import tqdm
 
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from common.multitarget import InitError as MultiInitError
     from common.runner import InitError
     from common.sources import SourceError
@@ -86,8 +86,8 @@ def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int
 
 def run_multi(args: argparse.Namespace) -> int:
     """In-process multi-target tracking (:func:`common.multitarget_runner.track_frames`)."""
-    from services.cli import UsageError
-    from services.commands.multi_args import multi_run, source_spec
+    from services.commands.errors import UsageError
+    from services.commands.common_args import multi_run, source_spec
     from common.multitarget import body_model
     from common.multitarget_runner import track_frames as track_multi_frames
     from common.sources import SourceError, open_source

@@ -24,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.cli import UsageError
+    from services.commands.errors import UsageError
     from services.rerun_log import MCAP_MAGIC, display_available, mcap_to_rrd, open_viewer
 
     src = Path(args.mcap)

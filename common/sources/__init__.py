@@ -22,72 +22,15 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
 import cv2
 import numpy as np
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+from common.sources.base import IMAGE_SUFFIXES, Frame, GroundTruth, Source, SourceError
 
-
-class SourceError(ValueError):
-    """The source cannot be opened or is inconsistent; the message says how to fix it."""
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    box: tuple[float, float, float, float] | None
-    """(x, y, w, h), top-left corner and size in pixels (0-based); None when not visible."""
-    angle_deg: float | None = None
-    """Image orientation of the target (anticlockwise as displayed), when the source knows it."""
-    visible_fraction: float | None = None
-
-    @property
-    def centre(self) -> tuple[float, float] | None:
-        if self.box is None:
-            return None
-        x, y, w, h = self.box
-        return (x + w / 2.0, y + h / 2.0)
-
-
-@dataclass(frozen=True)
-class Frame:
-    index: int
-    """Position in source order, from 0."""
-    time: float
-    """Capture time in seconds (source clock)."""
-    image: np.ndarray = field(repr=False)
-    """uint8 (H, W, 3) RGB."""
-    homography: np.ndarray | None = None
-    """3x3 ground plane (metres) -> image pixels, when the source knows the camera pose."""
-    truth: GroundTruth | None = None
-    people: object | None = field(default=None, repr=False)
-    """The people scene's :class:`common.scene.people.PeopleTruth` (every person's part centres)."""
-
-    @property
-    def size(self) -> tuple[int, int]:
-        return (self.image.shape[1], self.image.shape[0])
-
-
-class Source:
-    """Base class: a name, a frame rate, an optional length, iteration over frames."""
-
-    name: str = "source"
-    fps: float = 30.0
-    live: bool = False
-    """True for real-time sources (a camera): consumers may skip stale frames."""
-
-    def __len__(self) -> int:  # pragma: no cover - overridden
-        raise TypeError(f"{self.name} has no known length")
-
-    def __iter__(self) -> Iterator[Frame]:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-    @property
-    def has_truth(self) -> bool:
-        return False
+__all__ = ["IMAGE_SUFFIXES", "Frame", "GroundTruth", "Source", "SourceError", "open_source"]
 
 
 class SyntheticSource(Source):
