@@ -36,7 +36,7 @@ from .motion import (NearConstantVelocity, OrientationRandomWalk, VisibilityMark
                      wrap_degrees)
 from .observation import N_ANGLES, FrameObservation, ObservationUnavailable, inside_image_log_prior, sanitise_scores
 from .orientation_proposal import sample_orientation
-from .state import InitialState, TrackState, summarise_particles
+from .state import InitialState, TrackState, filter_state
 
 
 class RBPFConfig(BaseModel):
@@ -288,29 +288,10 @@ class RaoBlackwellisedParticleFilter:
                 scores = scores[keep]
 
         w = self.weights
-        n_eff = resampling.ess(w)
-        pi1 = self.p_visible_per_particle
-        p_visible = float(np.clip(w @ pi1, 0.0, 1.0))
-        i_map, map_est, mmse_est = summarise_particles(self.particles, image_xy, w)
-        do_resample = n_eff < cfg.ess_threshold_fraction * self.n_particles
-        state = TrackState(
-            time=float(frame_time),
-            observed=observation is not None,
-            map_estimate=map_est,
-            mmse_estimate=mmse_est,
-            p_visible=p_visible,
-            n_eff=n_eff,
-            speed=map_est.speed,
-            orientation=map_est.theta,
-            particles=self.particles,
-            particles_image=image_xy,
-            particle_visibility=pi1,
-            weights=w,
-            resampled=do_resample,
-            log_likelihood=float(log_lik),
-            score=None if observation is None else float(scores[i_map]),
-        )
-        if do_resample:
+        state = filter_state(frame_time, observation is not None, self.particles, image_xy, w,
+                             self.p_visible_per_particle, log_lik, scores if scored is not None else None,
+                             cfg.ess_threshold_fraction)
+        if state.resampled:
             idx = self._resample(w, self.rng)
             self.particles = self.particles[idx]
             self.log_pv = self.log_pv[idx]

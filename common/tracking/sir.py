@@ -23,7 +23,7 @@ from .camera import world_to_image
 from .likelihood import ExponentialScoreLikelihood, LikelihoodModel
 from .motion import NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain
 from .observation import FrameObservation, ObservationUnavailable, inside_image_log_prior, sanitise_scores
-from .state import InitialState, TrackState, summarise_particles
+from .state import InitialState, TrackState, filter_state
 
 
 class SIRConfig(BaseModel):
@@ -147,28 +147,10 @@ class SIRParticleFilter:
             self.log_w = log_w - log_lik
 
         w = self.weights
-        n_eff = resampling.ess(w)
-        v = self.visible.astype(float)
-        i_map, map_est, mmse_est = summarise_particles(self.particles, image_xy, w)
-        do_resample = n_eff < cfg.ess_threshold_fraction * self.n_particles
-        state = TrackState(
-            time=float(frame_time),
-            observed=observation is not None,
-            map_estimate=map_est,
-            mmse_estimate=mmse_est,
-            p_visible=float(np.clip(w @ v, 0.0, 1.0)),
-            n_eff=n_eff,
-            speed=map_est.speed,
-            orientation=map_est.theta,
-            particles=self.particles,
-            particles_image=image_xy,
-            particle_visibility=v,
-            weights=w,
-            resampled=do_resample,
-            log_likelihood=float(log_lik),
-            score=None if observation is None else float(scores[i_map]),
-        )
-        if do_resample:
+        state = filter_state(frame_time, observation is not None, self.particles, image_xy, w,
+                             self.visible.astype(float), log_lik, scores if scored is not None else None,
+                             cfg.ess_threshold_fraction)
+        if state.resampled:
             idx = self._resample(w, self.rng)
             self.particles = self.particles[idx]
             self.visible = self.visible[idx]

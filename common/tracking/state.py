@@ -15,6 +15,7 @@ import numpy as np
 from .camera import image_to_world
 from .kernel_density import kernel_density
 from .motion import wrap_degrees
+from .resampling import ess
 
 PARTICLE_COLUMNS = ("x", "vx", "y", "vy", "theta")
 """Columns of a particle array: world position/velocity (Pang's X_t) and image-plane orientation (degrees)."""
@@ -250,3 +251,30 @@ def kernel_mode_index(xy: np.ndarray, w: np.ndarray, max_points: int = 2000) -> 
     cand = np.argsort(-w, kind="stable")[:max_points]
     dens = kernel_density(xy, w, h2, cand)
     return int(cand[np.argmax(dens)])
+
+
+def filter_state(frame_time: float, observed: bool, particles: np.ndarray, image_xy: np.ndarray,
+                 weights: np.ndarray, visibility: np.ndarray, log_likelihood: float, scores: np.ndarray | None,
+                 ess_threshold_fraction: float) -> TrackState:
+    """The :class:`TrackState` a particle filter reports after weighting: MAP and MMSE estimates,
+    p(V=1|Z) = sum_p w_p v_p (``visibility``: each particle's V or p(V=1)), N_eff and whether it
+    falls below ``ess_threshold_fraction * N`` (the filter then resamples)."""
+    n_eff = ess(weights)
+    i_map, map_est, mmse_est = summarise_particles(particles, image_xy, weights)
+    return TrackState(
+        time=float(frame_time),
+        observed=observed,
+        map_estimate=map_est,
+        mmse_estimate=mmse_est,
+        p_visible=float(np.clip(weights @ visibility, 0.0, 1.0)),
+        n_eff=n_eff,
+        speed=map_est.speed,
+        orientation=map_est.theta,
+        particles=particles,
+        particles_image=image_xy,
+        particle_visibility=visibility,
+        weights=weights,
+        resampled=n_eff < ess_threshold_fraction * len(particles),
+        log_likelihood=float(log_likelihood),
+        score=None if not observed or scores is None else float(scores[i_map]),
+    )

@@ -15,26 +15,25 @@ import dataclasses
 import numpy as np
 
 
-def positive_int(text: str) -> int:
-    """An argparse type: a whole number of at least 1 (``--frames``, ``--particles``)."""
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
-    return n
+def _int_at_least(low: int, what: str):
+    """An argparse type: a whole number of at least ``low``; ``what`` names it in the error."""
+
+    def parse(text: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if n < low:
+            raise argparse.ArgumentTypeError(f"{what} at least {low}, got {n}")
+        return n
+
+    return parse
 
 
-def seed_int(text: str) -> int:
-    """An argparse type: a random generator's seed, a whole number of at least 0."""
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"a seed is at least 0, got {n}")
-    return n
+positive_int = _int_at_least(1, "must be")
+"""``--frames``, ``--particles``: at least 1."""
+seed_int = _int_at_least(0, "a seed is")
+"""A random generator's seed: at least 0."""
 
 
 def box_arg(text: str) -> tuple[float, float, float, float]:
