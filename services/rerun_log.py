@@ -82,7 +82,7 @@ FLUSH_EVERY = 256
 """Messages logged between two (non-blocking) flushes of the recording stream. Without them Rerun's
 batching pipeline held on to what was logged: a viewer grew 14 MB every 1,000 frames (55 MB in an
 8-minute soak) while its Python objects stayed at a few MB; flushed every 256 messages, its
-memory is flat (``tests/test_viewer.py``)."""
+memory is flat (``tests/test_services_memory.py``)."""
 CAPTURE_TIME = "capture_time"
 
 RED = (230, 40, 40)
