@@ -334,4 +334,7 @@ def test_the_second_queryable_is_ignored_counted_and_reported(forged_run):
     assert r.rejected["recorder"]["frame/image"]["foreign_sender"] >= 1
     assert r.rejected["launcher"]["frame/info"]["foreign_sender"] >= 1
     assert r.rejected["detector"]["detector/score/query"]["foreign_sender"] >= 1
-    assert all(statuses == [ScoreReply.BAD_REQUEST] for statuses in forged_run["attack"]["foreign_query_replies"])
+    replies = forged_run["attack"]["foreign_query_replies"]
+    # a foreign query is never answered with scores: refused, or (a loaded machine) not answered in time
+    assert all(set(statuses) <= {ScoreReply.BAD_REQUEST} for statuses in replies)
+    assert any(statuses == [ScoreReply.BAD_REQUEST] for statuses in replies)
