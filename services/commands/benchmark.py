@@ -65,8 +65,6 @@ def open_sequences(args) -> list:
     from services.commands.common_args import settings_for
     from common.sources import SourceError, open_source
 
-    if args.frames is not None and args.frames < 1:
-        raise UsageError("--frames must be at least 1")
     out = []
     for spec in args.sequences:
         if not Path(spec).is_dir():
