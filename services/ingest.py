@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import signal
+import threading
 import time
 from typing import Literal
 
@@ -72,6 +74,32 @@ def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true
     return info
 
 
+class Pause:
+    """SIGUSR1 holds the source before its next frame, SIGUSR2 lets it go on (as a player's
+    pause and resume; :meth:`services.launcher.Pipeline.pause_source` sends them). A held source
+    keeps its Zenoh session running: SIGSTOP would also stop the threads that keep its
+    shared-memory frames valid, and a frame still on its way to a slow subscriber could then be
+    lost (seen once in a hundred runs of the fuzz test: one frame missing from the recording)."""
+
+    def __init__(self) -> None:
+        self.held = threading.Event()
+        for sig, handler in ((signal.SIGUSR1, lambda *_: self.held.set()),
+                             (signal.SIGUSR2, lambda *_: self.held.clear())):
+            try:
+                signal.signal(sig, handler)
+            except ValueError:  # not the main thread (tests)
+                pass
+
+    def wait(self, stopper: "Stopper") -> float:
+        """While held (and not stopped): wait. Returns the seconds waited."""
+        if not self.held.is_set():
+            return 0.0
+        t0 = time.monotonic()
+        while self.held.is_set() and not stopper.stopped:
+            stopper.wait(0.01)
+        return time.monotonic() - t0
+
+
 class Clock:
     """The real-time clock of a file source: ``wall0`` is the monotonic time of source time 0."""
 
@@ -124,6 +152,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
 
     from common.msgs import RunConfig
 
+    pause = Pause()  # before anything: a pause signal never finds the default action (exit)
     c = Counters("ingest")
     guard = make_guard(bus, "ingest", c, log)
     source = open_source(cfg.source, n_frames=cfg.frames)
@@ -192,6 +221,11 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
                     c.add("errors")
 
         for frame in frames_to_publish(source, cfg.pace, c, clock, cfg.max_late_frames):
+            if stopper.stopped:
+                break
+            held = pause.wait(stopper)
+            if held and clock.wall0 is not None:
+                clock.wall0 += held  # real time resumes where it was held
             if stopper.stopped:
                 break
             index = frame.index

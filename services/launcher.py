@@ -284,6 +284,19 @@ class Pipeline:
                 proc.wait(5)
         return proc.returncode
 
+    def pause_source(self) -> None:
+        """Hold ingest before its next frame (SIGUSR1; :class:`services.ingest.Pause`), its bus
+        session still running, until :meth:`resume_source`."""
+        self._signal_ingest(signal.SIGUSR1)
+
+    def resume_source(self) -> None:
+        self._signal_ingest(signal.SIGUSR2)
+
+    def _signal_ingest(self, sig: int) -> None:
+        proc = self.procs.get("ingest")
+        if proc is not None and proc.poll() is None:
+            proc.send_signal(sig)
+
     def kill(self, service: str) -> None:
         proc = self.procs.get(service)
         if proc is not None and proc.poll() is None:

@@ -6,7 +6,6 @@ estimated and recorded once, the bad ones are counted per key, and the estimates
 the in-process tracker, bit for bit. Loopback only: the run's private router, the test's own
 client session (explicit endpoint, multicast scouting off); seeded; bounded in count and time."""
 
-import signal
 import threading
 import time
 
@@ -65,7 +64,7 @@ def client_session(pipe):
 
 def run_with(pipe_kwargs, attack, tmp_path, pause_at=30, timeout=300):
     """A run of FRAMES frames; ``attack(pipe, stop, armed)`` runs in a thread from the first
-    estimate, the source waiting (SIGSTOP) until the attack has set up (``armed``), so that it goes
+    estimate, the source held (``Pipeline.pause_source``) until the attack has set up (``armed``), so that it goes
     on while frames flow; at frame ``pause_at`` the source waits again until the attack is over
     (every message of it sent while the run goes on)."""
     src = open_source(SOURCE, n_frames=FRAMES)
@@ -75,11 +74,11 @@ def run_with(pipe_kwargs, attack, tmp_path, pause_at=30, timeout=300):
     out = {}
 
     def paused(pipe, until):
-        pipe.procs["ingest"].send_signal(signal.SIGSTOP)
+        pipe.pause_source()
         try:
             until()
         finally:
-            pipe.procs["ingest"].send_signal(signal.SIGCONT)
+            pipe.resume_source()
 
     def on_estimate(pipe, est):
         if not started:

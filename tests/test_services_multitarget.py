@@ -223,8 +223,6 @@ def test_detector_answers_malformed_histogram_queries_with_errors(detector):
 def test_detector_killed_and_restarted_multi(tmp_path):
     """Without the detector the multi-target tracker reports every frame as a prediction
     (``observed`` false) and weighs again once a new detector is up; nothing stops."""
-    import signal
-
     from common.settings import TrackerSettings
 
     frames = 16
@@ -235,11 +233,11 @@ def test_detector_killed_and_restarted_multi(tmp_path):
             pipe.kill("detector")
             events.append(("killed", est.frame_index))
         elif len(events) == 1 and est.frame_index >= events[0][1] + 3:
-            pipe.procs["ingest"].send_signal(signal.SIGSTOP)  # the outage lasts a few frames
+            pipe.pause_source()  # the outage lasts a few frames
             pipe.start("detector")
             assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), ["detector"], 120)
             events.append(("restarted", est.frame_index))
-            pipe.procs["ingest"].send_signal(signal.SIGCONT)
+            pipe.resume_source()
 
     run = MultiRun.make("epmcmc-elpda", open_source(SOURCE, n_frames=frames).person_boxes(), n_parts=PARTS,
                         particles=PARTICLES)

@@ -157,11 +157,11 @@ def test_detector_killed_and_restarted(tmp_path):
         elif len(events) == 1 and est.frame_index >= events[0][1] + 3:
             # pause the source while the new detector starts (seconds on a loaded machine), so the
             # outage lasts a few frames, as a quick restart would in a live run
-            pipe.procs["ingest"].send_signal(signal.SIGSTOP)
+            pipe.pause_source()
             pipe.start("detector")
             assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), ["detector"], 120)
             events.append(("restarted", est.frame_index))
-            pipe.procs["ingest"].send_signal(signal.SIGCONT)
+            pipe.resume_source()
 
     with Pipeline(SOURCE, src.frame(0).truth.box, settings, out_dir=tmp_path, frames=frames, viewer=False,
                   log_dir=tmp_path, supervise=False) as pipe:  # restarted by hand here (supervised: test_services_supervision)

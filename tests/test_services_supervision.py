@@ -55,7 +55,7 @@ def kill_at(watch: Watch, services, sig, at: int = 8, pause_source: bool = False
         watch.look(pipe)
         if est.frame_index >= at and not killed:
             if pause_source:
-                pipe.procs["ingest"].send_signal(signal.SIGSTOP)
+                pipe.pause_source()
             for s in services:
                 pipe.procs[s].send_signal(sig)
             killed.append((est.frame_index, time.monotonic()))
@@ -68,7 +68,7 @@ def resume_when_alive(pipe, service) -> None:
     try:
         assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), [service], 120)
     finally:
-        pipe.procs["ingest"].send_signal(signal.SIGCONT)
+        pipe.resume_source()
 
 
 def pipeline(tmp_path, frames, **kw):
@@ -202,7 +202,7 @@ def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path):
     inject, _ = kill_at(watch, ["recorder", "viewer"], signal.SIGKILL, pause_source=True)
 
     def restarted(pipe, service):  # the source waits for each new process
-        pipe.procs["ingest"].send_signal(signal.SIGSTOP)
+        pipe.pause_source()
         resume_when_alive(pipe, service)
 
     src = open_source(SOURCE, n_frames=frames)

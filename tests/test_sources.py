@@ -203,3 +203,32 @@ def test_clock_reset_makes_the_next_frame_due_when_read():
         assert (seen[1] != 1) == expect_drop, (reset, seen)
         assert (counters["dropped"] > 0) == expect_drop
     assert Clock().lateness_s(5.0) == 0.0  # not started: never late
+
+
+def test_pause_holds_the_source_until_resumed_and_a_stop_ends_the_hold():
+    """SIGUSR1 holds ingest before its next frame, SIGUSR2 lets it go (what
+    ``Pipeline.pause_source`` sends instead of SIGSTOP); a stop ends a hold at once."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from services.bus import Stopper
+    from services.ingest import Pause
+
+    saved = {s: signal.getsignal(s) for s in (signal.SIGUSR1, signal.SIGUSR2, signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        pause, stopper = Pause(), Stopper()
+        assert pause.wait(stopper) == 0.0  # not held: no wait at all
+        os.kill(os.getpid(), signal.SIGUSR1)
+        assert pause.held.is_set()
+        threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGUSR2)).start()
+        t0 = time.monotonic()
+        held = pause.wait(stopper)
+        assert 0.25 <= held and time.monotonic() - t0 >= 0.25 and not pause.held.is_set()
+        os.kill(os.getpid(), signal.SIGUSR1)
+        threading.Timer(0.1, stopper.event.set).start()
+        assert pause.wait(stopper) < 5 and pause.held.is_set()  # stopped while held: back at once
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
