@@ -61,8 +61,13 @@ MAX_BOXES = 1_000_000
 MAX_CLIENT_CHARS = 64
 
 MAX_TIME_JUMP_S = 60.0
-"""A frame more than this after the previous frame of its stream is rejected (a FrameInfo 1e6 s
-ahead put the estimate 1e7 px off)."""
+"""A frame more than this per index step after the previous frame of its stream is rejected (a
+FrameInfo 1e6 s ahead put the estimate 1e7 px off). Per index step: after frames that were
+rejected (or skipped), the next good one is that many steps on, and may be that much later."""
+
+MIN_EQUILIBRATED_DET = 1e-9
+"""A homography whose determinant, once its columns and then its rows are scaled to unit length,
+is below this is singular (1 for a rotation; 0.15-0.7 for the synthetic scene's cameras)."""
 
 MAX_FRAME_INDEX = 1 << 40
 
@@ -107,11 +112,18 @@ def check_homography(values) -> None:
     h = np.asarray(values, float).reshape(3, 3)
     if not np.all(np.isfinite(h)):
         raise Invalid("bad_homography", "NaN or infinite entries")
-    scale = float(np.max(np.abs(h)))
-    if scale == 0.0:
+    if not np.any(h):
         raise Invalid("bad_homography", "all zero")
-    hn = h / scale
-    if abs(float(np.linalg.det(hn))) < 1e-12 or not np.isfinite(np.linalg.cond(hn)) or np.linalg.cond(hn) > 1e12:
+    # Singular up to the units of either plane: the determinant once every column (the source
+    # plane's axes) and then every row (the image's) has unit length. The plain condition
+    # number is no test: a ground plane in metres kilometres from its origin gives 1e8-1e12
+    # for a perfectly good camera (the 30-minute scene's infos were all refused on that).
+    cols = np.linalg.norm(h, axis=0)
+    if np.any(cols == 0.0):
+        raise Invalid("bad_homography", "singular (a zero column)")
+    hc = h / cols
+    rows = np.linalg.norm(hc, axis=1, keepdims=True)
+    if np.any(rows == 0.0) or abs(float(np.linalg.det(hc / rows))) < MIN_EQUILIBRATED_DET:
         raise Invalid("bad_homography", "singular")
 
 
@@ -122,7 +134,7 @@ def check_image_size(width: int, height: int) -> None:
 
 class FrameOrder:
     """One stream's frames: index strictly increasing, time never going back nor jumping more
-    than ``max_jump_s`` ahead, the same frame size throughout. :meth:`check` raises Invalid and
+    than ``max_jump_s`` per index step ahead, the same frame size throughout. :meth:`check` raises Invalid and
     changes nothing; :meth:`accept` records a frame that passed."""
 
     def __init__(self, max_jump_s: float = MAX_TIME_JUMP_S):
@@ -148,7 +160,7 @@ class FrameOrder:
             if self.time_s is not None:
                 if time_s < self.time_s:
                     raise Invalid("time_backwards", f"{time_s} after {self.time_s}")
-                if time_s - self.time_s > self.max_jump_s:
+                if time_s - self.time_s > self.max_jump_s * self._steps(index):
                     raise Invalid("time_jump", f"{time_s - self.time_s:.3g} s after the previous frame")
         if capture_ns is not None:
             if capture_ns < 0:
@@ -156,10 +168,13 @@ class FrameOrder:
             if self.capture_ns is not None:
                 if capture_ns < self.capture_ns:
                     raise Invalid("time_backwards", f"capture_ns {capture_ns} after {self.capture_ns}")
-                if (capture_ns - self.capture_ns) * 1e-9 > self.max_jump_s:
+                if (capture_ns - self.capture_ns) * 1e-9 > self.max_jump_s * self._steps(index):
                     raise Invalid("time_jump", f"capture time {(capture_ns - self.capture_ns) * 1e-9:.3g} s ahead")
         if size is not None and self.size is not None and tuple(size) != self.size:
             raise Invalid("size_changed", f"{size[0]}x{size[1]} after {self.size[0]}x{self.size[1]}")
+
+    def _steps(self, index: int) -> int:
+        return 1 if self.index is None else max(1, index - self.index)
 
     def accept(self, index: int, time_s: float | None = None, capture_ns: int | None = None,
                size: tuple[int, int] | None = None) -> None:

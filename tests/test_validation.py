@@ -61,6 +61,38 @@ def test_homography_check_accepts_a_real_one():
     check_homography(list((np.diag([2.0, 2.0, 1.0]) @ np.array([[1, 0.1, 5], [0, 1, 3], [1e-4, 0, 1]])).ravel()))
 
 
+def test_homography_check_is_blind_to_the_planes_units_not_to_rank():
+    """A good camera over a ground plane in metres far from its origin (the 30-minute synthetic
+    scene's frame 53,999: condition number 5e8, plain determinant 3e-13, all its infos had been
+    refused) passes; so does any rescaling of either plane; a rank-2 matrix at the same scale,
+    and a zero column, do not."""
+    h = np.array([[-6073.5852, -5338.9142, -51492438.4236], [-4967.2673, 6110.3526, 11109513.4152],
+                  [0.3073, -0.3781, 1.0]])
+    assert np.linalg.cond(h / np.abs(h).max()) > 1e8
+    check_homography(list(h.ravel()))
+    for left, right in ((np.diag([1e-3, 1e-3, 1.0]), np.eye(3)), (np.eye(3), np.diag([1e4, 1e4, 1.0]))):
+        check_homography(list((left @ h @ right).ravel()))
+    rank2 = h.copy()
+    rank2[:, 1] = 3.0 * rank2[:, 0]
+    assert reason(check_homography, list(rank2.ravel())) == "bad_homography"
+    zero_col = h.copy()
+    zero_col[:, 2] = 0.0
+    assert reason(check_homography, list(zero_col.ravel())) == "bad_homography"
+
+
+def test_rejected_frames_do_not_poison_the_stream():
+    """After a run of rejected frames (a minute of them at 30 fps), the next good frame is many
+    index steps on and that much later: accepted (the stream had refused every frame after such
+    a gap, comparing each with the last accepted one by a per-frame jump bound). A jump that is
+    too large for its index step is still refused."""
+    order = FrameOrder()
+    check_frame_info(info(0, t=0.0), order)
+    later = info(1801, t=1801 / 30)  # 60.03 s later, 1,801 index steps on
+    check_frame_info(later, order)
+    assert order.index == 1801
+    assert reason(check_frame_info, info(1802, t=1801 / 30 + 61.0), order) == "time_jump"
+
+
 def test_decode_caps_size_before_parsing():
     assert reason(decode, FrameInfo, b"\x00" * (2 << 20), "frame/info") == "too_large"
     assert reason(decode, FrameInfo, b"\xff\xfe garbage", "frame/info") == "undecodable"
