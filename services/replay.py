@@ -22,33 +22,57 @@ from services.bus import BusConfig, Inbox, ns_attachment, open_session, payload_
 from services.launcher import client_args, free_ports, router_config
 
 
-def republish(path: str, bus: BusConfig, speed: float | None = 1.0, warn=None) -> dict:
-    """Publish every recorded message again, streamed from the file in its order (one chunk in
-    memory at a time), paced by the log times; ``speed`` None = as fast as possible. A file cut
-    short is published up to the cut; untrustworthy records are skipped and counted."""
+def republish(path: str, bus: BusConfig, speed: float | None = 1.0, warn=None, *, topics=None,
+              start_s: float = 0.0, end_s: float | None = None, loops: int = 1, on_ready=None) -> dict:
+    """Publish the recorded messages again, streamed from the file in its order (one chunk in
+    memory at a time), paced by the log times; ``speed`` None = as fast as possible. Only
+    ``topics`` (all when None); only the messages logged from ``start_s`` to ``end_s`` seconds
+    after the recording's first message; ``loops`` passes over it (0: until interrupted), each
+    paced from its own start. ``on_ready()`` is called once the session is open (before the
+    first message). A file cut short is published up to the cut; untrustworthy records are
+    skipped and counted."""
+    from common.record.info import InfoError, recording_info
+
+    if start_s < 0 or (end_s is not None and end_s <= start_s):
+        raise RecordingError(f"--start {start_s} / --end {end_s}: need 0 <= start < end")
+    try:
+        t0 = recording_info(path).start_ns  # the recording's first log time (its summary)
+    except InfoError:
+        t0 = None  # unreadable: the stream below says why (or the first message read sets it)
+    wanted = None if topics is None else set(topics)
     report = ReadReport()
-    sent = 0
-    topics: set[str] = set()
+    sent, passes = 0, 0
+    per_topic: dict[str, int] = {}
     with open_session(bus) as session:
+        if on_ready is not None:
+            on_ready()
         pubs = {}
-        t_first = None
-        wall0 = time.monotonic()
-        for topic, t, data in stream_messages(path, None, report):
-            if t_first is None:
-                t_first = t
-            if speed:
-                delay = wall0 + (t - t_first) / 1e9 / speed - time.monotonic()
-                if delay > 0:
-                    time.sleep(min(delay, 60.0))  # a garbled log time never stalls the replay for long
-            pub = pubs.get(topic) or pubs.setdefault(topic, publisher(session, bus.key(topic)))
-            pub.put(data, attachment=ns_attachment(t))
-            topics.add(topic)
-            sent += 1
+        while loops == 0 or passes < loops:
+            report = ReadReport()  # counted afresh each pass: the last pass's figures are reported
+            wall0 = time.monotonic()
+            for topic, t, data in stream_messages(path, wanted, report):
+                t0 = t if t0 is None else t0
+                lo = t0 + int(start_s * 1e9)
+                if t < lo or (end_s is not None and t > t0 + int(end_s * 1e9)):
+                    continue
+                if speed:
+                    delay = wall0 + (t - lo) / 1e9 / speed - time.monotonic()
+                    if delay > 0:
+                        time.sleep(min(delay, 60.0))  # a garbled log time never stalls the replay for long
+                pub = pubs.get(topic) or pubs.setdefault(topic, publisher(session, bus.key(topic)))
+                pub.put(data, attachment=ns_attachment(t))
+                per_topic[topic] = per_topic.get(topic, 0) + 1
+                sent += 1
+            passes += 1
+            if sent == 0:
+                break  # nothing in the window: looping would only spin
     _warn(path, report, warn)
     if sent == 0 and (report.cut or report.skipped):
         raise RecordingError(f"{path}: not a readable MCAP file (no message could be read: "
                              f"{report.cut or report.skipped})")
-    return {"messages": sent, "topics": len(topics), **_read_stats(report)}
+    missing = sorted(wanted - set(per_topic)) if wanted is not None else []
+    return {"messages": sent, "topics": len(per_topic), "per_topic": per_topic, "passes": passes,
+            **({"topics_not_found": missing} if missing else {}), **_read_stats(report)}
 
 
 def _read_stats(report: ReadReport) -> dict:

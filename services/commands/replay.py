@@ -1,7 +1,8 @@
 """Replay a recording: republish it on the bus, or re-run the tracker and check the estimates.
 
 Without flags the recorded messages are published again on a loopback bus (``--speed X``
-times real time, or ``--max``). ``--retrack`` re-runs the tracker against the recorded frames
+times real time, or ``--max``), the endpoint printed first; ``--topics`` picks topics,
+``--start``/``--end`` a window (seconds from the first message), ``--loop`` repeats it. ``--retrack`` re-runs the tracker against the recorded frames
 with a live detector; ``--offline`` re-runs it from the recorded detector replies with no
 detector at all. Both report whether every estimate equals the recorded one (same seed and
 config give bit-identical estimates).
@@ -29,6 +30,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     m = p.add_mutually_exclusive_group()
     m.add_argument("--retrack", action="store_true", help="re-run the tracker with a live detector and compare")
     m.add_argument("--offline", action="store_true", help="re-run the tracker from the recorded replies")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="republish only these topics (e.g. frame/image "
+                   "track/estimate; `polartrack info FILE.mcap` lists them)")
+    p.add_argument("--start", type=float, default=0.0, metavar="S",
+                   help="republish from S seconds after the recording's first message")
+    p.add_argument("--end", type=float, metavar="S", help="republish up to S seconds after the first message")
+    p.add_argument("--loop", type=int, nargs="?", const=0, default=1, metavar="N",
+                   help="republish N times (--loop alone: until interrupted)")
     p.add_argument("--stream", default="replay", help="bus namespace for republishing")
     p.add_argument("--listen", action="append", help="Zenoh endpoint to listen on (republish)")
     p.add_argument("--connect", action="append", help="Zenoh endpoint to connect to (republish)")
@@ -41,6 +49,13 @@ def run(args: argparse.Namespace) -> int:
 
     if args.speed is not None and args.speed <= 0:
         raise UsageError("--speed must be positive")
+    if args.start < 0 or (args.end is not None and args.end <= args.start):
+        raise UsageError(f"--start {args.start:g} and --end {args.end:g}: need 0 <= start < end"
+                         if args.end is not None else f"--start {args.start:g}: must be at least 0")
+    if args.loop < 0:
+        raise UsageError("--loop N: N must be at least 1 (or --loop alone: until interrupted)")
+    if (args.retrack or args.offline) and (args.topics or args.start or args.end is not None or args.loop != 1):
+        raise UsageError("--topics, --start, --end and --loop apply to republishing, not to --retrack or --offline")
     try:
         if args.offline:
             out = {"mode": "offline", **offline_retrack(args.mcap)}
@@ -52,8 +67,23 @@ def run(args: argparse.Namespace) -> int:
             from services.bus import BusConfig
             from services.replay import republish
 
-            bus = BusConfig(stream=args.stream, listen=args.listen or ["tcp/127.0.0.1:0"], connect=args.connect or [])
-            out = {"mode": "republish", **republish(args.mcap, bus, None if args.max else args.speed)}
+            import sys
+
+            from services.launcher import free_ports
+
+            listen = args.listen if args.listen is not None else ([] if args.connect else
+                                                                   [f"tcp/127.0.0.1:{free_ports(1)[0]}"])
+            bus = BusConfig(stream=args.stream, listen=listen, connect=args.connect or [])
+
+            def ready() -> None:
+                where = ", ".join([f"listening on {e}" for e in listen] + [f"connected to {e}" for e in args.connect or []])
+                print(f"replaying {args.mcap} on polartrack/{args.stream}/** ({where}); subscribers: "
+                      f"--connect {listen[0] if listen else (args.connect or [''])[0]} --stream {args.stream}",
+                      file=sys.stderr if args.json else sys.stdout, flush=True)
+
+            out = {"mode": "republish", **republish(args.mcap, bus, None if args.max else args.speed,
+                                                    topics=args.topics, start_s=args.start, end_s=args.end,
+                                                    loops=args.loop, on_ready=ready)}
     except RecordingError as exc:
         raise UsageError(str(exc)) from None
     except KeyboardInterrupt:
@@ -69,7 +99,10 @@ def run(args: argparse.Namespace) -> int:
         if out.get("mismatched"):
             print(f"first mismatched frames: {out['mismatched']}")
     else:
-        print(f"republished {out['messages']} messages on {out['topics']} topics")
+        passes = f" in {out['passes']} passes" if out.get("passes", 1) > 1 else ""
+        print(f"republished {out['messages']} messages on {out['topics']} topics{passes}")
+        if out.get("topics_not_found"):
+            print("no message on: " + ", ".join(out["topics_not_found"]))
     if not args.json and out.get("malformed"):
         print("malformed messages skipped: " + ", ".join(f"{k} {v}" for k, v in sorted(out["malformed"].items())))
     return 0 if out.get("identical", True) else 1
