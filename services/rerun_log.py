@@ -71,6 +71,7 @@ from common.msgs import (
     unpack,
 )
 from common.msgs.image_wire import decode_image
+from common.tracking.state import oriented_box_corners
 
 log = logging.getLogger("polartrack.rerun_log")
 
@@ -509,7 +510,8 @@ class RunLogger:
         if self.stats["messages"] % FLUSH_EVERY == 0:
             self.rec.flush(timeout_sec=0)  # started, not waited for: bounds what Rerun buffers
         cls = message_class(topic)
-        if cls is None or topic in ("detector/query", "detector/reply"):
+        if cls is None or topic in ("detector/query", "detector/reply", "track/annotations"):
+            # (the annotations are the track as Foxglove draws it: Rerun draws its own from the estimates)
             self.stats["skipped"] += 1
             return False
         try:
@@ -569,12 +571,8 @@ class RunLogger:
     @staticmethod
     def _rotated_box(cx: float, cy: float, w: float, h: float, theta_deg: float) -> list[list[float]]:
         """Closed outline of a w x h box at (cx, cy) turned anticlockwise as displayed (y down)."""
-        a = math.radians(theta_deg)
-        c, s = math.cos(a), math.sin(a)
-        pts = []
-        for dx, dy in ((-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2), (-w / 2, -h / 2)):
-            pts.append([cx + dx * c + dy * s, cy - dx * s + dy * c])
-        return pts
+        corners = [list(p) for p in oriented_box_corners(cx, cy, w, h, theta_deg)]
+        return corners + corners[:1]
 
 
 # ---------------------------------------------------------------------- MCAP -> RRD

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.msgs import (Estimate, FrameInfo, MultiEstimate, ParticleCloud, RawImage, RunConfig, ScoreQuery,
+from common.msgs import (Estimate, FrameInfo, ImageAnnotations, MultiEstimate, ParticleCloud, RawImage, RunConfig, ScoreQuery,
                          ScoreReply, ServiceStatus, Template, image_to_msg, pack)
 from common.recording import read_recording
 from common.runner import track_frames
@@ -144,6 +144,7 @@ def fuzz(pipe, stop, armed) -> dict:
                                            lambda: Estimate(frame_index=0, x=float("nan")).SerializeToString()]),
             "track/multi_estimate": ("tracker", [lambda: undecodable(rng, MultiEstimate)]),
             "track/particles": ("tracker", [lambda: undecodable(rng, ParticleCloud)]),
+            "track/annotations": ("tracker", [lambda: undecodable(rng, ImageAnnotations)]),
             "template": ("tracker", [lambda: undecodable(rng, Template)]),
             "detector/query": ("detector", [lambda: undecodable(rng, ScoreQuery)]),
             "detector/reply": ("detector", [lambda: undecodable(rng, ScoreReply)]),

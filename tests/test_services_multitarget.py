@@ -72,6 +72,32 @@ def test_the_recording_holds_frames_estimates_and_histogram_queries(multi_pipeli
     assert r.mean_err is not None and r.mean_err < 25.0  # mean part error against the scene's truth
 
 
+def test_the_recording_draws_every_person_in_foxglove(multi_pipeline):
+    """``track/annotations`` (foxglove.ImageAnnotations), one per multi-target estimate at its
+    log time: each target's parts as points and its skeleton (part to parent) as a line list."""
+    import numpy as np
+
+    from common.msgs import unpack
+
+    rec = multi_pipeline["rec"]
+    est = {t: e for (t, _), e in zip(rec.messages["track/multi_estimate"], rec.decoded("track/multi_estimate"))}
+    anns = list(zip((t for t, _ in rec.messages["track/annotations"]), rec.decoded("track/annotations")))
+    assert sorted(t for t, _ in anns) == sorted(est)
+    for t, ann in anns:
+        e = est[t]
+        pos = unpack(e.positions, np.float64, (e.targets, e.parts, 2))
+        parents = unpack(e.parents, np.int32, (e.parts,))
+        points = [p for p in ann.points if p.type == p.POINTS]
+        lines = [p for p in ann.points if p.type == p.LINE_LIST]
+        assert len(points) == len(lines) == e.targets == 3
+        for k in range(e.targets):
+            assert [(q.x, q.y) for q in points[k].points] == [tuple(v) for v in pos[k].tolist()]
+            bones = [(i, j) for i, j in enumerate(parents) if j >= 0]
+            want = [tuple(pos[k][n]) for i, j in bones for n in (i, j)]
+            assert [(q.x, q.y) for q in lines[k].points] == want and len(want) == 2 * (e.parts - 1)
+        assert {p.timestamp.ToNanoseconds() for p in ann.points} == {t}
+
+
 def test_run_equals_in_process_bit_for_bit(multi_pipeline):
     got = sorted(multi_pipeline["rec"].decoded("track/multi_estimate"), key=lambda e: e.frame_index)
     expected = in_process(multi_pipeline["run"])

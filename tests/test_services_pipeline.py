@@ -73,7 +73,7 @@ def test_recording_holds_everything(recorded_run):
     n = {k: len(v) for k, v in rec.messages.items()}
     assert n["frame/image"] == FRAMES
     assert n["frame/info"] == FRAMES + 1  # and the end-of-stream marker
-    assert n["track/estimate"] == FRAMES and n["track/particles"] == FRAMES
+    assert n["track/estimate"] == FRAMES and n["track/particles"] == FRAMES == n["track/annotations"]
     queries = rec.decoded("detector/query")
     replies = rec.decoded("detector/reply")
     at = [q for q in queries if q.kind == ScoreQuery.AT]
@@ -90,6 +90,49 @@ def test_recording_holds_everything(recorded_run):
     assert run["source"] == SOURCE and json.loads(run["init_box"]) == list(recorded_run["init"])
     assert json.loads(run["settings_json"]) == recorded_run["settings"].model_dump(mode="json")
     assert int(run["seed"]) == 3 and "numpy" in json.loads(run["versions_json"])
+
+
+def test_recording_draws_the_track_in_foxglove(recorded_run):
+    """``track/annotations``: one foxglove.ImageAnnotations per estimate, read back through the
+    file's own schema (as Foxglove reads it, not through our classes), stamped with the frame's
+    capture time, equal to the estimate: its oriented box's corners, a circle at its centre, a
+    p(visible) label; the frame's true box; the particle cloud's points."""
+    import math
+
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    from common.msgs import ParticleCloud, unpack
+    from common.tracking.state import oriented_box_corners
+
+    path = recorded_run["result"].mcap
+    with open(path, "rb") as fh:
+        got = [(schema.name, schema.encoding, msg.log_time, dec)
+               for schema, _ch, msg, dec in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                   topics=["track/annotations"])]
+    assert len(got) == FRAMES and {(g[0], g[1]) for g in got} == {("foxglove.ImageAnnotations", "protobuf")}
+    rec = read_recording(path)
+    ests = {e.frame_index: (t, e) for (t, _), e in zip(rec.messages["track/estimate"], rec.decoded("track/estimate"))}
+    infos = {i.capture_ns: i for i in rec.decoded("frame/info") if not i.end_of_stream}
+    clouds = {c.frame_index: c for c in rec.decoded("track/particles")}
+    by_time = {t: e for t, e in ests.values()}
+    for _name, _enc, log_time, ann in got:
+        e, info = by_time[log_time], infos[log_time]
+        stamps = {p.timestamp.ToNanoseconds() for p in ann.points} | {c.timestamp.ToNanoseconds() for c in ann.circles}
+        assert stamps == {info.capture_ns}
+        loops = [p for p in ann.points if p.type == p.LINE_LOOP]
+        truth, box = loops  # the truth's box first, then the estimate's
+        t = info.truth
+        assert [(q.x, q.y) for q in truth.points] == [(t.box_x, t.box_y), (t.box_x + t.box_w, t.box_y),
+                                                      (t.box_x + t.box_w, t.box_y + t.box_h), (t.box_x, t.box_y + t.box_h)]
+        assert e.w > 0 and [(q.x, q.y) for q in box.points] == oriented_box_corners(e.x, e.y, e.w, e.h, e.theta_deg)
+        assert [(c.position.x, c.position.y) for c in ann.circles] == [(e.x, e.y)]
+        assert ann.texts[0].text.startswith(f"p(visible) {e.p_visible:.2f}")
+        (cloud_pts,) = [p for p in ann.points if p.type == p.POINTS]
+        c = clouds[e.frame_index]
+        xy = unpack(c.image_xy, np.float64, (c.count, 2))
+        assert [(q.x, q.y) for q in cloud_pts.points] == [tuple(v) for v in xy.tolist()]
+        assert not math.isnan(box.points[0].x)
 
 
 def test_multiprocess_equals_in_process(recorded_run):

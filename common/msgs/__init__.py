@@ -1,4 +1,5 @@
-"""Message schemas of the bus: the project's own protobuf messages and Foxglove's RawImage,
+"""Message schemas of the bus: the project's own protobuf messages and Foxglove's RawImage and
+ImageAnnotations (the track drawn on the image: ``common/msgs/annotations.py``),
 the topic of each, and packing of NumPy arrays into ``bytes`` fields.
 
 The generated code (``polartrack/messages_pb2.py``) comes from ``proto/`` via
@@ -8,6 +9,7 @@ The generated code (``polartrack/messages_pb2.py``) comes from ``proto/`` via
 from __future__ import annotations
 
 import numpy as np
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from common.msgs.polartrack.messages_pb2 import (
@@ -32,6 +34,7 @@ TOPICS: dict[str, type] = {
     "track/estimate": Estimate,
     "track/particles": ParticleCloud,
     "track/multi_estimate": MultiEstimate,
+    "track/annotations": ImageAnnotations,
     "run/config": RunConfig,
 }
 """Topic suffix (after ``polartrack/<stream>/``) -> message class. Status topics are
@@ -82,4 +85,4 @@ def msg_to_image(msg: RawImage) -> np.ndarray:
 
 
 __all__ = ["RawImage", "FrameInfo", "Truth", "ScoreQuery", "ScoreReply", "Template", "Estimate", "MultiEstimate", "ParticleCloud",
-           "RunConfig", "ServiceStatus", "TOPICS", "message_class", "pack", "unpack", "image_to_msg", "msg_to_image"]
+           "RunConfig", "ServiceStatus", "ImageAnnotations", "TOPICS", "message_class", "pack", "unpack", "image_to_msg", "msg_to_image"]

@@ -200,6 +200,15 @@ def oriented_to_axis_aligned(cx: float, cy: float, w: float, h: float, theta_deg
     return (cx - bw / 2.0, cy - bh / 2.0, bw, bh)
 
 
+def oriented_box_corners(cx: float, cy: float, w: float, h: float, theta_deg: float) -> list[tuple[float, float]]:
+    """The four corners of a w x h box centred on (cx, cy) and turned by ``theta_deg``
+    anticlockwise as displayed (image y down), in outline order."""
+    a = math.radians(theta_deg)
+    c, s = math.cos(a), math.sin(a)
+    return [(cx + dx * c + dy * s, cy - dx * s + dy * c)
+            for dx, dy in ((-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2))]
+
+
 def summarise_particles(
     particles: np.ndarray, image_xy: np.ndarray, weights: np.ndarray
 ) -> tuple[int, Estimate, Estimate]:

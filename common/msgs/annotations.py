@@ -1,0 +1,127 @@
+"""The track as Foxglove (and Rerun's MCAP loader) draw it: ``foxglove.ImageAnnotations`` on the
+camera image, built from the project's own messages.
+
+Single target (``track/annotations``): the estimate's oriented box (a line loop; a circle at the
+centre when the box size is unknown), the particles as points, the ground truth's box when the
+frame has one, and a label with p(visible). Several articulated targets: every part as a point,
+the body model's skeleton as a line list, one colour a target. Every annotation carries the
+frame's capture time, the image's timestamp, so that a viewer pairs them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from foxglove_schemas_protobuf.CircleAnnotation_pb2 import CircleAnnotation
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+from foxglove_schemas_protobuf.Point2_pb2 import Point2
+from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
+from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
+from google.protobuf.timestamp_pb2 import Timestamp
+
+from common.msgs import unpack
+from common.tracking.state import oriented_box_corners
+
+ESTIMATE = Color(r=0.9, g=0.1, b=0.1, a=1.0)
+PREDICTED = Color(r=0.6, g=0.6, b=0.6, a=1.0)
+"""The estimate of a frame without a detector reply (prediction only)."""
+TRUTH = Color(r=0.1, g=0.8, b=0.2, a=1.0)
+PARTICLES = Color(r=1.0, g=0.55, b=0.0, a=0.6)
+LABEL_BACKGROUND = Color(r=0.0, g=0.0, b=0.0, a=0.6)
+WHITE = Color(r=1.0, g=1.0, b=1.0, a=1.0)
+TARGETS = [Color(r=r, g=g, b=b, a=1.0) for r, g, b in
+           ((0.90, 0.10, 0.10), (0.10, 0.45, 0.90), (0.95, 0.75, 0.05), (0.60, 0.20, 0.80),
+            (0.05, 0.75, 0.75), (0.95, 0.45, 0.70), (0.45, 0.70, 0.15), (0.60, 0.40, 0.20))]
+
+MAX_PARTICLES = 1000
+"""Particles drawn at most (evenly spaced through the cloud): a 5,000-particle filter's points
+would cost the tracker more to build than the rest of its message."""
+
+
+def _stamp(ns: int) -> Timestamp:
+    t = Timestamp()
+    t.FromNanoseconds(int(ns))
+    return t
+
+
+def _finite(*v: float) -> bool:
+    return all(math.isfinite(x) for x in v)
+
+
+def _points(xy) -> list[Point2]:
+    return [Point2(x=x, y=y) for x, y in xy]
+
+
+def estimate_annotations(est, capture_ns: int, cloud=None, truth=None) -> ImageAnnotations:
+    """The annotations of one single-target estimate (``polartrack.Estimate``), with the
+    particles of its ``ParticleCloud`` and the frame's ``Truth`` when given."""
+    stamp = _stamp(capture_ns)
+    out = ImageAnnotations()
+    colour = ESTIMATE if est.observed else PREDICTED
+    if truth is not None and truth.visible and _finite(truth.box_x, truth.box_y, truth.box_w, truth.box_h):
+        x, y, w, h = truth.box_x, truth.box_y, truth.box_w, truth.box_h
+        out.points.append(PointsAnnotation(timestamp=stamp, type=PointsAnnotation.LINE_LOOP, thickness=1.0,
+                                           points=_points([(x, y), (x + w, y), (x + w, y + h), (x, y + h)]),
+                                           outline_color=TRUTH))
+    if cloud is not None and cloud.count > 0:
+        try:
+            xy = unpack(cloud.image_xy, np.float64, (int(cloud.count), 2))
+        except ValueError:
+            xy = np.empty((0, 2))
+        xy = xy[:: max(1, -(-len(xy) // MAX_PARTICLES))]
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        if len(xy):
+            out.points.append(PointsAnnotation(timestamp=stamp, type=PointsAnnotation.POINTS, thickness=2.0,
+                                               points=_points(xy.tolist()), outline_color=PARTICLES))
+    if not _finite(est.x, est.y):
+        return out
+    has_box = est.w > 0 and est.h > 0 and _finite(est.w, est.h, est.theta_deg)
+    if has_box:
+        corners = oriented_box_corners(est.x, est.y, est.w, est.h, est.theta_deg)
+        out.points.append(PointsAnnotation(timestamp=stamp, type=PointsAnnotation.LINE_LOOP, thickness=2.0,
+                                           points=_points(corners), outline_color=colour))
+        top = min(corners, key=lambda p: (p[1], p[0]))
+        at = Point2(x=top[0], y=top[1] - 4.0)
+    else:
+        at = Point2(x=est.x + 6.0, y=est.y - 6.0)
+    out.circles.append(CircleAnnotation(timestamp=stamp, position=Point2(x=est.x, y=est.y), diameter=6.0,
+                                        thickness=2.0, outline_color=colour))
+    label = f"p(visible) {est.p_visible:.2f}" + (" re-acquired" if est.reacquired else "") + \
+        ("" if est.observed else " predicted")
+    out.texts.append(TextAnnotation(timestamp=stamp, position=at, text=label, font_size=14.0, text_color=WHITE,
+                                    background_color=LABEL_BACKGROUND))
+    return out
+
+
+def multi_annotations(msg, capture_ns: int) -> ImageAnnotations:
+    """The annotations of one multi-target estimate (``polartrack.MultiEstimate``): each
+    target's parts as points and its skeleton (each part to its parent) as a line list."""
+    stamp = _stamp(capture_ns)
+    out = ImageAnnotations()
+    t, p = int(msg.targets), int(msg.parts)
+    if t == 0 or p == 0:
+        return out
+    try:
+        pos = unpack(msg.positions, np.float64, (t, p, 2))
+        parents = unpack(msg.parents, np.int32, (p,)) if msg.parents else np.full(p, -1, np.int32)
+    except ValueError:
+        return out
+    bones = [(i, int(j)) for i, j in enumerate(parents) if 0 <= j < p and j != i]
+    for k in range(t):
+        colour = TARGETS[k % len(TARGETS)]
+        parts = pos[k]
+        ok = np.isfinite(parts).all(axis=1)
+        if ok.any():
+            out.points.append(PointsAnnotation(timestamp=stamp, type=PointsAnnotation.POINTS, thickness=5.0,
+                                               points=_points(parts[ok].tolist()), outline_color=colour))
+        segs = [pt for i, j in bones if ok[i] and ok[j] for pt in (parts[i], parts[j])]
+        if segs:
+            out.points.append(PointsAnnotation(timestamp=stamp, type=PointsAnnotation.LINE_LIST, thickness=2.0,
+                                               points=_points(np.asarray(segs).tolist()), outline_color=colour))
+        if ok[0]:
+            out.texts.append(TextAnnotation(timestamp=stamp, position=Point2(x=parts[0][0], y=parts[0][1] - 10.0),
+                                            text=f"target {k}", font_size=12.0, text_color=WHITE,
+                                            background_color=LABEL_BACKGROUND))
+    return out

@@ -1,0 +1,63 @@
+"""The Foxglove annotations of an estimate, against hand-built cases: a box turned by 90 degrees,
+no box (a circle and a label only), no estimate at all (the truth and the particles only), a
+prediction labelled so, and a large cloud thinned to MAX_PARTICLES evenly spaced points."""
+
+import math
+
+import numpy as np
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+
+from common.msgs import Estimate, MultiEstimate, ParticleCloud, Truth, pack
+from common.msgs.annotations import MAX_PARTICLES, estimate_annotations, multi_annotations
+
+NS = 1_700_000_000_123_456_789
+
+
+def roundtrip(ann) -> ImageAnnotations:
+    return ImageAnnotations.FromString(ann.SerializeToString())
+
+
+def test_a_box_turned_by_90_degrees_swaps_its_sides():
+    e = Estimate(x=100.0, y=50.0, w=40.0, h=10.0, theta_deg=90.0, p_visible=0.876, observed=True)
+    ann = roundtrip(estimate_annotations(e, NS))
+    (box,) = ann.points
+    xs, ys = [p.x for p in box.points], [p.y for p in box.points]
+    assert math.isclose(max(xs) - min(xs), 10.0, abs_tol=1e-9) and math.isclose(max(ys) - min(ys), 40.0, abs_tol=1e-9)
+    assert box.timestamp.ToNanoseconds() == NS and box.type == box.LINE_LOOP
+    assert ann.texts[0].text == "p(visible) 0.88" and ann.circles[0].position.x == 100.0
+
+
+def test_no_box_no_estimate_and_a_prediction():
+    ann = roundtrip(estimate_annotations(Estimate(x=5.0, y=6.0, observed=False, reacquired=True), NS))
+    assert not ann.points and len(ann.circles) == 1 and ann.texts[0].text == "p(visible) 0.00 re-acquired predicted"
+    truth = Truth(visible=True, box_x=1, box_y=2, box_w=3, box_h=4)
+    cloud = ParticleCloud(count=3, image_xy=pack(np.array([[1.0, 2.0], [np.nan, 1.0], [3.0, 4.0]])))
+    ann = roundtrip(estimate_annotations(Estimate(x=math.nan, y=math.nan), NS, cloud, truth))
+    assert not ann.circles and not ann.texts
+    truth_box, points = ann.points
+    assert [(p.x, p.y) for p in truth_box.points] == [(1, 2), (4, 2), (4, 6), (1, 6)]
+    assert [(p.x, p.y) for p in points.points] == [(1.0, 2.0), (3.0, 4.0)]  # the non-finite one left out
+    hidden = roundtrip(estimate_annotations(Estimate(x=1.0, y=1.0), NS, None, Truth(visible=False)))
+    assert all(p.type != p.LINE_LOOP for p in hidden.points)
+
+
+def test_a_large_cloud_is_thinned_evenly():
+    n = 5 * MAX_PARTICLES + 3
+    xy = np.stack([np.arange(n, dtype=float), np.zeros(n)], axis=1)
+    ann = roundtrip(estimate_annotations(Estimate(x=1.0, y=1.0), NS, ParticleCloud(count=n, image_xy=pack(xy))))
+    (pts,) = [p for p in ann.points if p.type == p.POINTS]
+    got = [p.x for p in pts.points]
+    assert len(got) <= MAX_PARTICLES and got[0] == 0.0 and np.all(np.diff(got) == np.diff(got)[0])
+    bad = ParticleCloud(count=n, image_xy=b"\x00" * 7)  # sizes disagree with count: no points, no error
+    assert not roundtrip(estimate_annotations(Estimate(x=1.0, y=1.0), NS, bad)).points
+
+
+def test_multi_target_skeletons_skip_parts_that_are_not_finite():
+    pos = np.array([[[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]], [[5.0, 5.0], [np.nan, 6.0], [7.0, 7.0]]])
+    msg = MultiEstimate(targets=2, parts=3, positions=pack(pos), parents=pack(np.array([-1, 0, 1]), np.int32))
+    ann = roundtrip(multi_annotations(msg, NS))
+    lines = [[(q.x, q.y) for q in p.points] for p in ann.points if p.type == p.LINE_LIST]
+    assert lines == [[(1.0, 1.0), (0.0, 0.0), (2.0, 2.0), (1.0, 1.0)]]  # target 2's bones both touch the NaN part
+    points = [[(q.x, q.y) for q in p.points] for p in ann.points if p.type == p.POINTS]
+    assert points == [[(0.0, 0.0), (1.0, 1.0), (2.0, 2.0)], [(5.0, 5.0), (7.0, 7.0)]]
+    assert not roundtrip(multi_annotations(MultiEstimate(targets=2, parts=3, positions=b"bad"), NS)).points
