@@ -336,3 +336,18 @@ def test_texture_image_is_used_when_present():
     plain = SyntheticScene(SceneConfig(**SMALL), seed=1)
     assert not np.array_equal(s.frame(0).image, plain.frame(0).image)
     assert s.truth(0) == plain.truth(0)  # the ground does not change the truth
+
+
+def test_a_long_scene_keeps_the_target_in_view():
+    """A 5-minute scene: the camera follows the car however far it drives (the car's path spans
+    kilometres; half-following its mean had left the car ~40 km off the image in the soak's
+    scene). The 300-frame scenes are unchanged: their paths never reach the camera's limit."""
+    from common.sources import open_source
+
+    scene = open_source("synthetic:0:9000").scene
+    w, h = scene.size
+    centres = np.array([scene.truth(i).image_xy for i in range(0, len(scene), 50)])
+    span = np.ptp(np.array([scene.truth(i).world_xy for i in range(0, len(scene), 50)]), axis=0)
+    assert span.max() > 1000  # the car drives more than a kilometre
+    inside = (centres[:, 0] > 0) & (centres[:, 0] < w) & (centres[:, 1] > 0) & (centres[:, 1] < h)
+    assert inside.all(), centres[~inside][:5]

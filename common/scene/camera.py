@@ -65,13 +65,19 @@ def project(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return q[..., :2] / q[..., 2:3]
 
 
+FOLLOW_REACH = 0.8
+"""The smoothed target path stays within this fraction of the frame's half short side of the
+camera's ground point (at the first frame's zoom)."""
+
+
 def camera_trajectory(
     cfg: SceneConfig, target_xy: np.ndarray, rng: np.random.Generator
 ) -> tuple[list[CameraPose], np.ndarray]:
     """Per-frame camera poses and homographies ((n, 3, 3), float64).
 
     The camera's ground point is the mean of the target path, pulled ``camera_follow`` of the way
-    towards a heavily smoothed copy of it, plus a smooth drift and a small wobble. Its yaw starts
+    towards a heavily smoothed copy of it (and no further from it than :data:`FOLLOW_REACH`),
+    plus a smooth drift and a small wobble. Its yaw starts
     with the image's long side along the path's main direction and turns by
     ``camera_rotation_deg``; its focal length changes by ``camera_zoom_change``.
     """
@@ -90,7 +96,16 @@ def camera_trajectory(
          + np.sin(2 * np.pi * freqs[a, 1] * t + phases[a, 1]) * 0.4 for a in range(2)],
         axis=1,
     )
-    ground = centre + cfg.camera_follow * (smooth - centre) + drift + wobble
+    ground = centre + cfg.camera_follow * (smooth - centre)
+    # A camera that follows the target keeps it in view however long the run: the smoothed path
+    # never further from the ground point than FOLLOW_REACH of the frame's half short side. (Only
+    # long scenes reach it: over 30 minutes the path spans kilometres, and half of it away from
+    # the mean had left the car ~40 km off the image.)
+    reach = FOLLOW_REACH * 0.5 * min(cfg.width, cfg.height) / cfg.pixels_per_metre
+    away = ground - smooth
+    dist = np.linalg.norm(away, axis=1, keepdims=True)
+    ground = np.where(dist > reach, smooth + away * (reach / np.maximum(dist, 1e-12)), ground)
+    ground = ground + drift + wobble
 
     # image x along the main direction of the path (so the landscape frame holds it best)
     d = target_xy - centre
