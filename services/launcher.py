@@ -607,7 +607,21 @@ class Pipeline:
                          mean_err=float(errs.mean()) if errs.size else None,
                          frames_lost=int(np.sum(errs > 20.0)) if errs.size else None, fps=fps,
                          wall_s=time.monotonic() - t0, returncodes=codes, failure=failure,
-                         restarts=list(self.restart_log), rejected=rejected, recordings=list(self.recordings))
+                         restarts=list(self.restart_log), rejected=rejected, recordings=self.recording_files())
+
+    def recording_files(self) -> list[str]:
+        """Every file the run recorded in order: each recorder's file and its splits
+        (``NAME.splitK.mcap``, :class:`services.recorder.SplitSink`) after it."""
+        from services.recorder import SplitSink
+
+        out = []
+        for path in self.recordings:
+            out.append(path)
+            k = 1
+            while Path(part := SplitSink.part_path(path, k)).exists():
+                out.append(part)
+                k += 1
+        return out
 
 
 def versions() -> dict[str, str]:

@@ -50,6 +50,11 @@ class RecorderSettings(BaseModel):
                                  "recording of every 1280x720 frame would be 8 GB a minute")
     simulate_disk_bytes: int | None = Field(None, ge=0, description="testing: the disk holds this many bytes of the "
                                             "file, and writes beyond raise ENOSPC as a full disk would")
+    max_size_mb: float | None = Field(None, gt=0, description="split the recording into files of about this many "
+                                      "MB (NAME.split1.mcap, NAME.split2.mcap, ... after NAME.mcap), each closed "
+                                      "and readable alone; a split falls before a frame image")
+    max_duration_s: float | None = Field(None, gt=0, description="split the recording every this many seconds of "
+                                         "log (capture) time, before a frame image")
 
 
 class DiskFull(Exception):
@@ -161,6 +166,64 @@ class McapSink:
         fh.closed = True
 
 
+class SplitSink:
+    """An :class:`McapSink` that moves on to the next file (``NAME.splitK.mcap``) before a frame
+    image once the current one holds ``max_bytes`` or spans ``max_duration_ns`` of log time:
+    rosbag2's ``--max-bag-size``/``--max-bag-duration``. Every file is a whole MCAP file that
+    replays alone: it carries the run's metadata and its own message counts."""
+
+    def __init__(self, path: str, compression: str, chunk_size: int, disk_bytes: int | None = None,
+                 max_bytes: int | None = None, max_duration_ns: int | None = None):
+        self.path, self.args = path, (compression, chunk_size, disk_bytes)
+        self.max_bytes, self.max_duration_ns = max_bytes, max_duration_ns
+        self.part = 0
+        self.paths = [path]
+        self.sink = McapSink(path, *self.args)
+        self.first_ns: int | None = None
+        self.run_meta: dict[str, str] | None = None
+        self.total: dict[str, int] = {}
+
+    @staticmethod
+    def part_path(path: str, part: int) -> str:
+        p = Path(path)
+        return str(p.with_name(f"{p.stem}.split{part}{p.suffix}")) if part else path
+
+    def _due(self, log_time: int) -> bool:
+        if self.max_bytes is not None and self.sink.fh.tell() >= self.max_bytes:
+            return True
+        return (self.max_duration_ns is not None and self.first_ns is not None
+                and log_time - self.first_ns >= self.max_duration_ns)
+
+    def write(self, topic: str, data: bytes, log_time: int, publish_time: int) -> None:
+        if topic == "frame/image" and self.sink.counts.get("frame/image") and self._due(log_time):
+            self.close()
+            self.part += 1
+            self.paths.append(self.part_path(self.path, self.part))
+            self.sink = McapSink(self.paths[-1], *self.args)
+            self.first_ns = None
+            if self.run_meta is not None:
+                self.sink.metadata("run", self.run_meta)
+            log.info("recording split: now %s", self.paths[-1])
+        if self.first_ns is None:
+            self.first_ns = log_time
+        self.sink.write(topic, data, log_time, publish_time)
+        self.total[topic] = self.total.get(topic, 0) + 1
+
+    def metadata(self, name: str, data: dict[str, str]) -> None:
+        if name == "run":
+            self.run_meta = dict(data)
+        self.sink.metadata(name, data)
+
+    def close(self) -> None:
+        """Close the current file with its own counts."""
+        self.sink.metadata("recorder", {"messages": sum(self.sink.counts.values()),
+                                        **{f"count:{k}": v for k, v in self.sink.counts.items()}})
+        self.sink.close()
+
+    def __getattr__(self, name):  # flush, abort, flushed, flushed_messages: the current file's
+        return getattr(self.sink, name)
+
+
 def image_index(data: bytes) -> int:
     """The frame index of a ``frame/image`` payload, its geometry checked (the pixels not copied); Invalid."""
     from common.msgs.image_wire import decode_image
@@ -193,7 +256,9 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
     c = Counters("recorder")
     guard = make_guard(bus, "recorder", c, log)
     inbox = Inbox()
-    sink = McapSink(cfg.out, cfg.compression, cfg.chunk_size, cfg.simulate_disk_bytes)
+    sink = SplitSink(cfg.out, cfg.compression, cfg.chunk_size, cfg.simulate_disk_bytes,
+                     None if cfg.max_size_mb is None else int(cfg.max_size_mb * 1e6),
+                     None if cfg.max_duration_s is None else int(cfg.max_duration_s * 1e9))
     prefix = bus.key("")
     services = set(bus.ids)
     info_order, image_order = FrameOrder(), FrameOrder()
@@ -299,8 +364,6 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
         sub.undeclare()
     if not full:
         try:
-            sink.metadata("recorder", {"messages": sum(sink.counts.values()),
-                                       **{f"count:{k}": v for k, v in sink.counts.items()}})
             sink.close()
         except OSError as exc:
             if exc.errno != errno.ENOSPC:
@@ -310,7 +373,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
         sink.abort()
         raise DiskFull(f"{full[0]}: stopped; the file keeps its first {sink.flushed_messages} messages "
                        f"({sink.flushed} bytes, every whole record that reached the disk)")
-    log.info("wrote %d messages to %s", sum(sink.counts.values()), cfg.out)
+    log.info("wrote %d messages to %s", sum(sink.total.values()), ", ".join(sink.paths))
     return c
 
 
@@ -319,8 +382,10 @@ def main(argv: list[str] | None = None) -> int:
     options.add_bus_arguments(p)
     p.add_argument("--out", help="MCAP file to write")
     p.add_argument("--compression", choices=["lz4", "none"], help="chunk compression")
+    p.add_argument("--max-size-mb", dest="max_size_mb", type=float, help="split into files of about this many MB")
+    p.add_argument("--max-duration-s", dest="max_duration_s", type=float, help="split every this many seconds")
     args = p.parse_args(argv)
-    bus, cfg = options.load("recorder", args, RecorderSettings, ["out", "compression"])
+    bus, cfg = options.load("recorder", args, RecorderSettings, ["out", "compression", "max_size_mb", "max_duration_s"])
     from services.bus import setup_logging
 
     setup_logging("recorder", args.log_level)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 import sys
 
 from services.commands.common_args import apply_overrides, positive_int, seed_int
@@ -40,6 +41,9 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
                    help="consumer: paced by the tracker, nothing dropped (default); realtime: source rate")
     p.add_argument("--no-viewer", action="store_true", help="do not write the Rerun file")
     p.add_argument("--out-dir", default="recordings", help="where the recordings go")
+    p.add_argument("--max-size", type=float, metavar="MB", help="split the recording into files of about MB "
+                   "megabytes (NAME.split1.mcap, ...), each readable and replayable alone")
+    p.add_argument("--max-duration", type=float, metavar="S", help="split the recording every S seconds")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -80,8 +84,17 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
 def _launch(args, source_spec: str, init, settings, multi) -> int:
     from services.launcher import Interrupted, Pipeline
 
+    from services.commands.errors import UsageError
+
+    split = {}
+    for flag, key, value in (("--max-size", "max_size_mb", args.max_size), ("--max-duration", "max_duration_s",
+                                                                             args.max_duration)):
+        if value is not None:
+            if not value > 0:
+                raise UsageError(f"{flag} must be positive")
+            split[key] = value
     with Pipeline(source_spec, init, settings, out_dir=args.out_dir, frames=args.frames, pace=args.pace,
-                  viewer=not args.no_viewer, multi=multi) as pipe:
+                  viewer=not args.no_viewer, multi=multi, recorder_options=split or None) as pipe:
         try:
             result = pipe.run(progress=not args.no_progress)
         except KeyboardInterrupt as exc:
@@ -98,7 +111,8 @@ def _launch(args, source_spec: str, init, settings, multi) -> int:
     else:
         print(f"recording: {result.mcap}")
         for part in result.recordings[1:]:
-            print(f"           {part}   (after a restart of the recorder)")
+            why = "split" if ".split" in Path(part).name else "after a restart of the recorder"
+            print(f"           {part}   ({why})")
         if result.rrd:
             print(f"rerun:     {result.rrd}   (open with: rerun {result.rrd})")
         err = "n/a" if result.mean_err is None else f"{result.mean_err:.2f} px"
