@@ -21,7 +21,9 @@ from dataclasses import dataclass, field
 from io import BytesIO
 from typing import Iterable, Iterator
 
-from common.msgs import Estimate, ScoreQuery, ScoreReply, TOPICS, msg_to_image
+import numpy as np
+
+from common.msgs import Estimate, ScoreQuery, ScoreReply, TOPICS
 from common.msgs.convert import estimate_msg, info_frame, info_homography
 
 
@@ -424,15 +426,15 @@ class _Images:
     frames are stepped: those ahead are held (at most ``ahead``), those behind dropped."""
 
     def __init__(self, rec: Recording, ahead: int = 64):
-        from common.msgs import RawImage
-
         self._it = rec.stream(["frame/image"])
-        self._held: dict[int, object] = {}
+        self._held: dict[int, np.ndarray] = {}
         self._ahead = ahead
-        self._cls = RawImage
 
-    def get(self, index: int):
-        from common.validation import Invalid, decode
+    def get(self, index: int) -> np.ndarray | None:
+        """Frame ``index``'s pixels (a read-only view into the recorded bytes); None when not
+        recorded. ValueError: the recorded image is garbled (its geometry or pixels)."""
+        from common.msgs.image_wire import decode_frame
+        from common.validation import max_bytes
 
         for k in [k for k in self._held if k < index]:
             del self._held[k]
@@ -441,13 +443,14 @@ class _Images:
                 _topic, _t, data = next(self._it)
             except StopIteration:
                 return None
+            if len(data) > max_bytes("frame/image"):
+                continue
             try:
-                msg = decode(self._cls, data, "frame/image")
-                fid = int(msg.frame_id)
-            except (Invalid, ValueError):
+                fid, _msg, image = decode_frame(data)
+            except Exception:  # noqa: BLE001 - protobuf and the wire reader raise several types
                 continue
             if fid >= index and len(self._held) < self._ahead:
-                self._held[fid] = msg
+                self._held[fid] = image
         return self._held.pop(index)
 
 
@@ -487,13 +490,10 @@ def offline_retrack(path: str) -> dict:
     for info in infos:
         image = None
         if pixels:
-            msg = images.get(info.index)
-            if msg is None:
-                raise RecordingError(f"{path}: frame {info.index}'s image is not recorded (needed to stabilise)")
-            try:
-                image = msg_to_image(msg)
-            except Exception as exc:  # noqa: BLE001 - a garbled image: its geometry or pixels
-                raise RecordingError(f"{path}: frame {info.index}'s image is unreadable ({type(exc).__name__})") from None
+            image = images.get(info.index)
+            if image is None:
+                raise RecordingError(f"{path}: frame {info.index}'s image is not recorded or unreadable "
+                                     "(needed to stabilise)")
         frame = info_frame(info, image)
         if tracker is None:
             try:

@@ -17,11 +17,10 @@ from services.bus import Inbox, attachment_ns, attachment_sender, payload_bytes
 def decode_image(sample) -> tuple[int, np.ndarray, int]:
     """(frame index, uint8 RGB image, capture ns) of a ``frame/image`` sample; ValueError (or a
     protobuf DecodeError) when malformed. The image is a read-only view into the payload's bytes."""
-    msg, image = image_wire.decode_image(payload_bytes(sample))
+    index, msg, image = image_wire.decode_frame(payload_bytes(sample))
     check_image_size(image.shape[1], image.shape[0])
-    index = int(msg.frame_id)
     if not 0 <= index <= MAX_FRAME_INDEX:
-        raise Invalid("bad_index", msg.frame_id[:20])
+        raise Invalid("bad_index", str(index)[:20])
     return index, image, attachment_ns(sample) or msg.timestamp.ToNanoseconds()
 
 

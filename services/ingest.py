@@ -248,7 +248,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             last_ns = capture_ns
             att = ns_attachment(capture_ns)
             true_centre = source.true_centre(frame.index) if hasattr(source, "true_centre") else None
-            pub_image.put(encode_image(frame.image, capture_ns, str(frame.index)), attachment=att)
+            pub_image.put(encode_image(frame.image, capture_ns, frame.index), attachment=att)
             segments.populate()  # the pool, once the first frame has created it
             pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)

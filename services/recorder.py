@@ -226,11 +226,10 @@ class SplitSink:
 
 def image_index(data: bytes) -> int:
     """The frame index of a ``frame/image`` payload, its geometry checked (the pixels not copied); Invalid."""
-    from common.msgs.image_wire import decode_image
+    from common.msgs.image_wire import decode_frame
 
     try:
-        msg, image = decode_image(data)
-        index = int(msg.frame_id)
+        index, msg, image = decode_frame(data)
     except Exception as exc:  # noqa: BLE001 - protobuf and the wire reader raise several types
         raise Invalid("undecodable", f"not a frame image: {type(exc).__name__}") from None
     check_image_size(image.shape[1], image.shape[0])

@@ -70,7 +70,7 @@ from common.msgs import (
     msg_to_image,
     unpack,
 )
-from common.msgs.image_wire import decode_image
+from common.msgs.image_wire import decode_frame
 from common.tracking.state import oriented_box_corners
 
 log = logging.getLogger("polartrack.rerun_log")
@@ -291,8 +291,9 @@ class RunLogger:
     # ------------------------------------------------------------------ messages
     def frame_image(self, msg: RawImage, capture_ns: int | None = None, index: int | None = None,
                     image: np.ndarray | None = None) -> None:
-        """The frame as JPEG at ``camera/image``. The frame index is ``index``, else the image's
-        ``frame_id`` (the ingest service writes the index there), else looked up by capture time.
+        """The frame as JPEG at ``camera/image``. The frame index is ``index`` (the image's
+        :data:`common.msgs.image_wire.INDEX_FIELD`), else a numeric ``frame_id`` (older
+        recordings), else looked up by capture time.
         ``image``: the pixels, when ``msg`` was decoded without them (:mod:`common.msgs.image_wire`)."""
         import cv2
 
@@ -517,8 +518,8 @@ class RunLogger:
         try:
             msg = None if cls is RawImage else cls.FromString(data)
             if cls is RawImage:  # the pixels viewed in place, not copied twice through protobuf
-                head, image = decode_image(data)
-                self.frame_image(head, capture_ns, image=image)
+                index, head, image = decode_frame(data)
+                self.frame_image(head, capture_ns, index=index, image=image)
             elif cls is FrameInfo:
                 self.frame_info(msg, capture_ns)
             elif cls is Estimate:

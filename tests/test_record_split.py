@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from common.msgs.image_wire import decode_frame
 from common.record.info import recording_info
 from common.recording import read_recording
 from common.settings import profile_for
@@ -54,7 +55,7 @@ def test_a_split_run_replays_part_by_part(tmp_path, capsys):
         assert Path(p).stat().st_size < 8e6 + 4e6  # the limit plus a frame and its chunk
         rec = read_recording(p)  # no warning: a whole file
         assert json.loads(rec.run["init_box"]) == list(src.frame(0).truth.box)
-        frames += [int(m.frame_id) for m in rec.decoded("frame/image")]
+        frames += [decode_frame(data)[0] for _, data in rec.messages["frame/image"]]
         estimates += [e.frame_index for e in rec.decoded("track/estimate")]
         assert main(["replay", p, "--max", "--json"]) == 0
         out = json.loads(capsys.readouterr().out)

@@ -76,7 +76,7 @@ def clean(tmp_path_factory):
     for f in frames:
         ns = now[0] = 10**9 + f.index * 33_333_333
         info = info_of(f, ns)
-        sink.write("frame/image", encode_image(f.image, ns, str(f.index)), ns, ns)
+        sink.write("frame/image", encode_image(f.image, ns, f.index), ns, ns)
         sink.write("frame/info", info.SerializeToString(), ns, ns)
         core.add_frame(f.index, f.image, f.time)
         rf = info_frame(info, f.image)

@@ -201,7 +201,7 @@ def test_detector_answers_malformed_histogram_queries_with_errors(detector):
     inbox = Inbox()
     session.declare_subscriber(bus.key("status/detector"), inbox.callback("status"))
     frame = open_source(SOURCE, n_frames=FRAMES).frame(0)
-    publisher(session, bus.key("frame/image")).put(encode_image(frame.image, 1000, "0"), attachment=ns_attachment(1000))
+    publisher(session, bus.key("frame/image")).put(encode_image(frame.image, 1000, 0), attachment=ns_attachment(1000))
     time.sleep(0.5)
     ev = HistogramEvidence(frame.image)
     boxes = np.array([[100.0, 100.0, 120.0, 140.0], [200.5, 90.2, 230.7, 160.1]])

@@ -16,6 +16,8 @@ import numpy as np
 import psutil
 import pytest
 
+from common.msgs.image_wire import decode_frame
+
 from common.recording import read_recording
 from common.settings import profile_for
 from common.sources import open_source
@@ -216,7 +218,7 @@ def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path):
     warnings = []
     first = read_recording(result.recordings[0], warn=warnings.append)
     second = read_recording(result.recordings[1], warn=warnings.append)
-    ids = lambda rec: [int(m.frame_id) for m in rec.decoded("frame/image")]  # noqa: E731
+    ids = lambda rec: [decode_frame(data)[0] for _, data in rec.messages["frame/image"]]  # noqa: E731
     a, b = ids(first), ids(second)
     assert a and b and max(a) < min(b) and max(b) == frames - 1  # the gap between them, nothing twice
     assert len(warnings) == 1  # the killed one is cut short; the restarted one closed cleanly

@@ -1,4 +1,5 @@
-"""foxglove.RawImage (rgb8) to and from its wire bytes with one copy of the pixels.
+"""foxglove.RawImage (rgb8) to and from its wire bytes with one copy of the pixels, the frame's
+index beside them (:data:`INDEX_FIELD`) and one fixed ``frame_id`` (:data:`CAMERA_FRAME`).
 
 A 1280x720 frame is 2.7 MB. ``image_to_msg(...).SerializeToString()`` copies the pixels three
 times (``tobytes``, into the message, into the serialised bytes) and ``msg_to_image(FromString(b))``
@@ -15,6 +16,16 @@ from . import RawImage
 
 _DATA = RawImage.DESCRIPTOR.fields_by_name["data"].number
 
+CAMERA_FRAME = "camera"
+"""The ``frame_id`` of every frame image: one fixed camera frame, as Foxglove and Rerun expect
+(Rerun's MCAP loader makes each frame_id a coordinate frame of its own)."""
+
+INDEX_FIELD = 100
+"""The frame's index travels in this field of the RawImage bytes: unknown to foxglove.RawImage,
+so readers that decode by the schema skip it (protobuf keeps unknown fields as they are), and
+:func:`decode_frame` reads it. Images without it (recordings before it) carry the index as
+their ``frame_id``."""
+
 
 def _varint(value: int) -> bytes:
     out = bytearray()
@@ -28,12 +39,14 @@ def _varint(value: int) -> bytes:
             return bytes(out)
 
 
-def encode_image(image: np.ndarray, capture_ns: int, frame_id: str) -> bytes:
-    """The wire bytes of ``image_to_msg(image, capture_ns, frame_id)`` (uint8 RGB (H, W, 3))."""
+def encode_image(image: np.ndarray, capture_ns: int, index: int | None, frame_id: str = CAMERA_FRAME) -> bytes:
+    """The wire bytes of ``image_to_msg(image, capture_ns, frame_id)`` (uint8 RGB (H, W, 3)) and
+    the frame's ``index`` in :data:`INDEX_FIELD` (None: no index field)."""
     h, w = image.shape[:2]
     head = RawImage(frame_id=frame_id, width=w, height=h, encoding="rgb8", step=3 * w)
     head.timestamp.FromNanoseconds(int(capture_ns))
-    prefix = head.SerializeToString() + _varint(_DATA << 3 | 2) + _varint(image.size)
+    extra = b"" if index is None else _varint(INDEX_FIELD << 3) + _varint(int(index))
+    prefix = head.SerializeToString() + extra + _varint(_DATA << 3 | 2) + _varint(image.size)
     out = bytearray(len(prefix) + image.size)
     out[: len(prefix)] = prefix
     np.frombuffer(out, np.uint8, image.size, len(prefix)).reshape(image.shape)[...] = image
@@ -53,17 +66,39 @@ def _read_varint(buf, i: int) -> tuple[int, int]:
         shift += 7
 
 
+def decode_frame(buf: bytes) -> tuple[int, RawImage, np.ndarray]:
+    """(frame index, the message without its pixels, the pixels) of a ``frame/image`` payload:
+    the index from :data:`INDEX_FIELD`, else from a numeric ``frame_id``; ValueError when there
+    is neither, or as :func:`decode_image`."""
+    index, msg, image = _decode(buf)
+    if index is None:
+        fid = msg.frame_id.strip()
+        if not fid.isdigit():
+            raise ValueError(f"no frame index (frame_id {fid[:20]!r})")
+        index = int(fid)
+    return index, msg, image
+
+
 def decode_image(buf: bytes) -> tuple[RawImage, np.ndarray]:
     """(the message without its pixels, uint8 RGB (H, W, 3) read-only view into ``buf``) of the
     wire bytes of a RawImage; ValueError (or protobuf's DecodeError) when malformed, with the
     same geometry checks as :func:`common.msgs.msg_to_image`."""
+    _, msg, image = _decode(buf)
+    return msg, image
+
+
+def _decode(buf: bytes) -> tuple[int | None, RawImage, np.ndarray]:
     head, data, i, n = [], None, 0, len(buf)
+    index = None
     while i < n:
         start = i
         key, i = _read_varint(buf, i)
         wire = key & 7
         if wire == 0:
-            _, i = _read_varint(buf, i)
+            value, i = _read_varint(buf, i)
+            if key >> 3 == INDEX_FIELD:
+                index = value
+                continue
         elif wire == 1:
             i += 8
         elif wire == 5:
@@ -91,4 +126,4 @@ def decode_image(buf: bytes) -> tuple[RawImage, np.ndarray]:
     offset, length = data if data is not None else (0, 0)
     if length != h * msg.step:
         raise ValueError(f"image data has {length} bytes, expected {h * msg.step} (truncated?)")
-    return msg, np.frombuffer(buf, np.uint8, length, offset).reshape(h, w, 3)
+    return index, msg, np.frombuffer(buf, np.uint8, length, offset).reshape(h, w, 3)
