@@ -106,6 +106,8 @@ class RunResult:
     restarts: list[dict] = field(default_factory=list)
     """Each restart: the service, its exit status, the frames seen when it died and when it was restarted."""
     rejected: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
+    rrd_images: int | None = None
+    """Frame images the Rerun file holds (the viewer keeps at most ``max_image_hz`` a second)."""
     """Messages dropped, per receiving service (and ``launcher``), key and reason."""
     recordings: list[str] = field(default_factory=list)
     """The MCAP files of the run: ``mcap``, then one more per restart of the recorder."""
@@ -120,7 +122,7 @@ class RunResult:
                 "mean_err": None if self.mean_err is None else round(self.mean_err, 3),
                 "frames_lost": self.frames_lost, "fps": round(self.fps, 2), "wall_s": round(self.wall_s, 2),
                 "returncodes": self.returncodes, "failure": self.failure, "restarts": self.restarts,
-                "rejected": self.rejected, "recordings": self.recordings}
+                "rejected": self.rejected, "recordings": self.recordings, "rrd_images": self.rrd_images}
 
 
 NICE = {"viewer": 19}
@@ -152,7 +154,7 @@ class Pipeline:
                  frames: int | None = None, pace: str = "consumer", viewer: bool = True, stream: str | None = None,
                  name: str | None = None, log_dir: str | Path | None = None, shared_memory: bool = True,
                  prerender: bool = False, multi=None, supervise: bool = True, on_restart=None,
-                 recorder_options: dict | None = None):
+                 recorder_options: dict | None = None, viewer_options: dict | None = None):
         """``supervise``: restart a dead detector, recorder or viewer (at most ``MAX_RESTARTS``
         times each), end the run on a dead router, tracker or ingest. ``on_restart(pipeline,
         service)`` is called after each restart (fault-injection tests). ``recorder_options``:
@@ -183,6 +185,9 @@ class Pipeline:
         self.logs: dict[str, object] = {}
         self.supervise, self.on_restart = supervise, on_restart
         self.recorder_options = dict(recorder_options or {})
+        self.viewer_options = dict(viewer_options or {})
+        if self.viewer_options.get("out"):  # the .rrd where the caller wants it
+            self.rrd = str(self.viewer_options.pop("out")) if viewer else None
         self.ids = {s: secrets.token_hex(8) for s in (*SERVICES, "router")}
         """The run's sender ids: every service speaks with its own and accepts each key only from
         the run's services that speak on it (common.validation)."""
@@ -210,6 +215,10 @@ class Pipeline:
                 base += ["--config", str(cfg)]
             return base + ["--out", out] + (["--compression", "none"] if self.incompressible() else [])
         if service == "viewer":
+            if self.viewer_options:
+                cfg = Path(self.tmp.name) / "viewer.json"
+                cfg.write_text(json.dumps(self.viewer_options))
+                base += ["--config", str(cfg)]
             return base + ["--out", self.part_path(self.rrd, self.parts.get("viewer", 0))]
         if service == "tracker":
             cfg = Path(self.tmp.name) / "tracker.json"
@@ -607,7 +616,9 @@ class Pipeline:
                          mean_err=float(errs.mean()) if errs.size else None,
                          frames_lost=int(np.sum(errs > 20.0)) if errs.size else None, fps=fps,
                          wall_s=time.monotonic() - t0, returncodes=codes, failure=failure,
-                         restarts=list(self.restart_log), rejected=rejected, recordings=self.recording_files())
+                         restarts=list(self.restart_log), rejected=rejected, recordings=self.recording_files(),
+                         rrd_images=(int(self.statuses["viewer"].published) if self.viewer and "viewer" in self.statuses
+                                     else None))
 
     def recording_files(self) -> list[str]:
         """Every file the run recorded in order: each recorder's file and its splits

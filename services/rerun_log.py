@@ -218,16 +218,25 @@ class RunLogger:
     # ------------------------------------------------------------------ construction
     @classmethod
     def to_file(cls, path: str | os.PathLike, *, spawn: bool = False, recording_id: str | None = None,
-                **kwargs) -> RunLogger:
-        """A logger writing to ``path`` (.rrd), with the blueprint as default; ``spawn`` also
-        starts a viewer and streams to it."""
+                connect: str | None = None, serve_port: int | None = None, **kwargs) -> RunLogger:
+        """A logger writing to ``path`` (.rrd), with the blueprint as default, and live as well:
+        ``spawn`` starts a viewer and streams to it, ``connect`` streams to a running viewer or
+        server at that gRPC URL (``rerun+http://HOST:PORT/proxy``), ``serve_port`` hosts a gRPC
+        server on loopback that viewers connect to (``rerun --connect rerun+http://127.0.0.1:PORT/proxy``)."""
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
         bp = blueprint()
         try:
+            sinks = [rr.FileSink(str(path))]
             if spawn:
                 rr.spawn(connect=False, recording=rec)
-                rec.set_sinks(rr.FileSink(str(path)), rr.GrpcSink(), default_blueprint=bp)
+                sinks.append(rr.GrpcSink())
+            if connect:
+                sinks.append(rr.GrpcSink(connect))
+            if serve_port is not None:
+                sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=serve_port))
+            if len(sinks) > 1:
+                rec.set_sinks(*sinks, default_blueprint=bp)
             else:
                 rec.save(str(path), default_blueprint=bp)
         except Exception:
@@ -589,7 +598,8 @@ def _topic_suffix(topic: str) -> str:
 
 
 def mcap_to_rrd(mcap_path: str | os.PathLike, rrd_path: str | os.PathLike, *, spawn: bool = False,
-                jpeg_quality: int = 85, track_length: int = 300) -> dict:
+                jpeg_quality: int = 85, track_length: int = 300, connect: str | None = None,
+                serve_port: int | None = None, before_close=None) -> dict:
     """Convert a recording written by the recorder to a Rerun .rrd file. Returns the counts
     (``images``, ``estimates``, ``clouds``, ``malformed``, ...), ``truncated`` (the file ended
     mid-record: converted up to there) and ``seconds``. Raises ``ValueError`` if ``mcap_path``
@@ -603,7 +613,8 @@ def mcap_to_rrd(mcap_path: str | os.PathLike, rrd_path: str | os.PathLike, *, sp
     with open(mcap_path, "rb") as fh:
         if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise ValueError(f"{mcap_path}: not an MCAP file")
-    logger = RunLogger.to_file(rrd_path, spawn=spawn, jpeg_quality=jpeg_quality, track_length=track_length)
+    logger = RunLogger.to_file(rrd_path, spawn=spawn, connect=connect, serve_port=serve_port,
+                               jpeg_quality=jpeg_quality, track_length=track_length)
     logger.rec.set_log_time_enabled(False)  # the conversion's wall clock means nothing here
     truncated = False
     report = ReadReport()
@@ -627,6 +638,8 @@ def mcap_to_rrd(mcap_path: str | os.PathLike, rrd_path: str | os.PathLike, *, sp
             log.warning("%s: read stopped early (%s); converted what was read", mcap_path, report.cut)
         if report.skipped:
             log.warning("%s: records skipped: %s", mcap_path, report.skipped)
+        if before_close is not None:  # e.g. a gRPC server kept up for late viewers (it closes with the logger)
+            before_close()
     finally:
         logger.close()
     return {**logger.stats, "truncated": truncated, "records_skipped": dict(report.skipped), "rrd": str(rrd_path),

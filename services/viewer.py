@@ -61,6 +61,10 @@ class ViewerSettings(BaseModel):
 
     out: str = Field(description="Rerun recording (.rrd) to write")
     spawn: bool = Field(False, description="also open a live Rerun viewer (when a display is available)")
+    rerun_connect: str | None = Field(None, description="also stream to a running Rerun viewer or server at this gRPC "
+                                "URL, e.g. rerun+http://127.0.0.1:9876/proxy")
+    rerun_serve_port: int | None = Field(None, ge=1, le=65535, description="also host a Rerun gRPC server on loopback at "
+                                   "this port; viewers connect with rerun --connect rerun+http://127.0.0.1:PORT/proxy")
     jpeg_quality: int = Field(85, ge=1, le=100, description="JPEG quality of the logged frames")
     track_length: int = Field(300, ge=2, le=100_000, description="estimates kept in the drawn track")
     quiet_s: float = Field(1.0, gt=0, le=600, description="after end of stream, stop after this long without messages")
@@ -92,7 +96,11 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
         log.warning("--spawn: no display available; writing %s only", cfg.out)
     session = open_session(bus)  # before the file: a bus that cannot be joined leaves no empty .rrd
     options.lower_priority(nice)  # after Zenoh's threads started, before Rerun's
-    logger = RunLogger.to_file(cfg.out, spawn=spawn, jpeg_quality=cfg.jpeg_quality, track_length=cfg.track_length)
+    logger = RunLogger.to_file(cfg.out, spawn=spawn, connect=cfg.rerun_connect, serve_port=cfg.rerun_serve_port,
+                               jpeg_quality=cfg.jpeg_quality, track_length=cfg.track_length)
+    if cfg.rerun_serve_port is not None:
+        log.info("serving the run to Rerun viewers: rerun --connect rerun+http://127.0.0.1:%d/proxy",
+                 cfg.rerun_serve_port)
     eos_at: float | None = None
     try:
         with session:
@@ -142,6 +150,8 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
                             continue
                         if logger.stats["malformed"] != malformed_before:
                             guard.reject(topic, "malformed")
+                        elif topic == "frame/image":
+                            c.add("published")  # images in the .rrd (the run's summary says how many)
                         if logger.stats["end_of_stream"] != eos_before and eos_at is None:
                             eos_at = time.monotonic()
                             log.info("end of stream; stopping after %.1f s of quiet", cfg.quiet_s)
@@ -169,13 +179,18 @@ def main(argv: list[str] | None = None) -> int:
     options.add_bus_arguments(p)
     p.add_argument("--out", metavar="FILE.rrd", help="Rerun recording to write")
     p.add_argument("--spawn", action="store_true", default=None, help="also open a live Rerun viewer")
+    p.add_argument("--rerun-connect", dest="rerun_connect", metavar="URL",
+                   help="also stream to a Rerun viewer or server at this gRPC URL")
+    p.add_argument("--rerun-serve-port", dest="rerun_serve_port", type=int, metavar="PORT",
+                   help="also serve the run to Rerun viewers on loopback at PORT")
     p.add_argument("--jpeg-quality", type=int, metavar="Q", help="JPEG quality of the logged frames (1-100)")
     p.add_argument("--track-length", type=int, metavar="K", help="estimates kept in the drawn track")
     p.add_argument("--quiet-s", type=float, metavar="S", help="after end of stream, stop after S s without messages")
     p.add_argument("--max-image-hz", type=float, metavar="HZ", help="frame images logged per second at most (0: all)")
     args = p.parse_args(argv)
     bus, cfg = options.load("viewer", args, ViewerSettings,
-                            ["out", "spawn", "jpeg_quality", "track_length", "quiet_s", "max_image_hz"],
+                            ["out", "spawn", "rerun_connect", "rerun_serve_port", "jpeg_quality", "track_length", "quiet_s",
+                             "max_image_hz"],
                             nice_later=True)
     try:
         bus.zenoh_config()

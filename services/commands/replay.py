@@ -37,6 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--end", type=float, metavar="S", help="republish up to S seconds after the first message")
     p.add_argument("--loop", type=int, nargs="?", const=0, default=1, metavar="N",
                    help="republish N times (--loop alone: until interrupted)")
+    p.add_argument("--rerun", nargs="+", metavar="MODE", help="send the recording to Rerun instead of the bus: "
+                   "spawn, connect [URL], serve [PORT] (until interrupted), save PATH.rrd (as on run)")
     p.add_argument("--stream", default="replay", help="bus namespace for republishing")
     p.add_argument("--listen", action="append", help="Zenoh endpoint to listen on (republish)")
     p.add_argument("--connect", action="append", help="Zenoh endpoint to connect to (republish)")
@@ -56,6 +58,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--loop N: N must be at least 1 (or --loop alone: until interrupted)")
     if (args.retrack or args.offline) and (args.topics or args.start or args.end is not None or args.loop != 1):
         raise UsageError("--topics, --start, --end and --loop apply to republishing, not to --retrack or --offline")
+    if args.rerun:
+        if args.retrack or args.offline or args.topics or args.start or args.end is not None or args.loop != 1:
+            raise UsageError("--rerun sends the whole recording to Rerun: without --retrack, --offline, "
+                             "--topics, --start, --end or --loop")
+        return _to_rerun(args)
     try:
         if args.offline:
             out = {"mode": "offline", **offline_retrack(args.mcap)}
@@ -106,3 +113,41 @@ def run(args: argparse.Namespace) -> int:
     if not args.json and out.get("malformed"):
         print("malformed messages skipped: " + ", ".join(f"{k} {v}" for k, v in sorted(out["malformed"].items())))
     return 0 if out.get("identical", True) else 1
+
+
+def _to_rerun(args: argparse.Namespace) -> int:
+    """``replay FILE --rerun MODE``: the recording converted as ``view`` does and streamed live."""
+    import tempfile
+    import time
+    from pathlib import Path
+
+    from services.commands.errors import UsageError
+    from services.commands.run import rerun_options
+    from services.rerun_log import mcap_to_rrd
+
+    live = rerun_options(args.rerun)
+    with tempfile.TemporaryDirectory(prefix="polartrack-replay-") as tmp:
+        rrd = live.get("out") or str(Path(tmp) / "replay.rrd")
+        if "rerun_serve_port" in live:
+            print(f"serving {args.mcap} to Rerun viewers: rerun --connect "
+                  f"rerun+http://127.0.0.1:{live['rerun_serve_port']}/proxy (Ctrl-C to stop)", flush=True)
+        def serve_until_interrupted() -> None:
+            try:
+                while True:
+                    time.sleep(1.0)
+            except KeyboardInterrupt:
+                pass
+
+        try:
+            out = mcap_to_rrd(args.mcap, rrd, spawn=bool(live.get("spawn")), connect=live.get("rerun_connect"),
+                              serve_port=live.get("rerun_serve_port"),
+                              before_close=serve_until_interrupted if "rerun_serve_port" in live else None)
+        except (ValueError, OSError) as exc:
+            raise UsageError(str(exc).splitlines()[0][:300]) from None
+    if args.json:
+        print(json.dumps({"mode": "rerun", **{k: v for k, v in out.items() if k != "rrd"},
+                          **({"rrd": live["out"]} if "out" in live else {})}))
+    else:
+        print(f"sent {out['messages']} messages ({out['images']} frame images) to Rerun"
+              + (f"; saved {live['out']}" if "out" in live else ""))
+    return 0

@@ -44,6 +44,10 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     p.add_argument("--max-size", type=float, metavar="MB", help="split the recording into files of about MB "
                    "megabytes (NAME.split1.mcap, ...), each readable and replayable alone")
     p.add_argument("--max-duration", type=float, metavar="S", help="split the recording every S seconds")
+    p.add_argument("--rerun", nargs="+", metavar="MODE", help="live Rerun beside the .rrd (Rerun's examples' "
+                   "modes): spawn (a viewer), connect [URL] (a running viewer or server; default "
+                   f"{DEFAULT_RERUN_URL}), serve [PORT] (viewers connect to the run; default port 9876), "
+                   "save PATH (the .rrd at PATH, with every frame image)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -81,6 +85,37 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
     return _launch(args, source_spec, init, settings, None)
 
 
+DEFAULT_RERUN_URL = "rerun+http://127.0.0.1:9876/proxy"
+
+
+def rerun_options(words: list[str] | None) -> dict:
+    """The viewer service's settings for ``--rerun MODE [ARG]``; UsageError for anything else."""
+    from services.commands.errors import UsageError
+
+    if not words:
+        return {}
+    mode, rest = words[0], words[1:]
+    usage = "--rerun spawn | connect [URL] | serve [PORT] | save PATH.rrd"
+    if len(rest) > 1:
+        raise UsageError(f"{usage}: one argument at most after {mode}")
+    if mode == "spawn" and not rest:
+        return {"spawn": True}
+    if mode == "connect":
+        url = rest[0] if rest else DEFAULT_RERUN_URL
+        if not url.startswith(("rerun://", "rerun+http://", "rerun+https://")):
+            raise UsageError(f"--rerun connect {url}: a Rerun gRPC URL, e.g. {DEFAULT_RERUN_URL}")
+        return {"rerun_connect": url}
+    if mode == "serve":
+        if rest and not (rest[0].isdigit() and 0 < int(rest[0]) < 65536):
+            raise UsageError(f"--rerun serve {rest[0]}: a port number (1-65535)")
+        return {"rerun_serve_port": int(rest[0]) if rest else 9876}
+    if mode == "save" and rest:
+        if not rest[0].endswith(".rrd"):
+            raise UsageError(f"--rerun save {rest[0]}: the file name must end in .rrd")
+        return {"out": rest[0], "max_image_hz": 0.0}
+    raise UsageError(f"{usage} (got --rerun {' '.join(words)})")
+
+
 def _launch(args, source_spec: str, init, settings, multi) -> int:
     from services.launcher import Interrupted, Pipeline
 
@@ -93,8 +128,15 @@ def _launch(args, source_spec: str, init, settings, multi) -> int:
             if not value > 0:
                 raise UsageError(f"{flag} must be positive")
             split[key] = value
+    live = rerun_options(args.rerun)
+    if live and args.no_viewer:
+        raise UsageError("--rerun needs the viewer: drop --no-viewer")
     with Pipeline(source_spec, init, settings, out_dir=args.out_dir, frames=args.frames, pace=args.pace,
-                  viewer=not args.no_viewer, multi=multi, recorder_options=split or None) as pipe:
+                  viewer=not args.no_viewer, multi=multi, recorder_options=split or None,
+                  viewer_options=live or None) as pipe:
+        if "rerun_serve_port" in live:
+            print(f"serving the run to Rerun viewers: rerun --connect rerun+http://127.0.0.1:{live['rerun_serve_port']}/proxy",
+                  file=sys.stderr if args.json else sys.stdout, flush=True)
         try:
             result = pipe.run(progress=not args.no_progress)
         except KeyboardInterrupt as exc:
@@ -115,6 +157,10 @@ def _launch(args, source_spec: str, init, settings, multi) -> int:
             print(f"           {part}   ({why})")
         if result.rrd:
             print(f"rerun:     {result.rrd}   (open with: rerun {result.rrd})")
+            if result.rrd_images is not None:
+                thinned = (" (at most 10 a second; --rerun save PATH.rrd keeps every one)"
+                           if result.rrd_images < result.frames else "")
+                print(f"           {result.rrd_images} of {result.frames} frame images kept{thinned}")
         err = "n/a" if result.mean_err is None else f"{result.mean_err:.2f} px"
         if multi is not None:
             err += " (mean part-centre error)"
