@@ -18,11 +18,12 @@ import threading
 import time
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from common.msgs import Estimate, FrameInfo, MultiEstimate, Truth, pack
-from common.msgs.image_wire import encode_image
+from common.msgs.image_wire import encode_compressed, encode_image
 from common.sources import Frame, PrerenderedSource, SourceError, open_source
+from common.sources.published import parse_image_format, published_image
 from services import options
 from common.validation import check_estimate, check_multi_estimate
 from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_sender, make_guard, ns_attachment,
@@ -45,8 +46,18 @@ class IngestSettings(BaseModel):
     consumer_timeout_s: float = Field(10.0, gt=0, description="consumer pacing: give up waiting after this")
     wait_for: list[str] = Field(default_factory=list, description="services to wait for (liveliness) first")
     wait_timeout_s: float = Field(60.0, gt=0)
+    @field_validator("image_format")
+    @classmethod
+    def _image_format(cls, v: str) -> str:
+        parse_image_format(v)
+        return v
+
     start_ns: int | None = Field(None, description="time base: capture_ns of frame 0 (default: now)")
     run_config: str | None = Field(None, description="RunConfig (JSON) to publish before the first frame")
+    image_format: str = Field("auto", description="frames on the bus and in the recording: auto (a JPEG or PNG "
+                              "file's own bytes, else raw for rendered scenes and jpeg:95 for video and cameras), "
+                              "raw, png (lossless), jpeg or jpeg:QUALITY (lossy: every consumer decodes the "
+                              "published bytes); see common.sources.published")
     prerender: bool = Field(False, description="read or render every frame before the first is published "
                             "(seekable sources; memory: all frames), so that the source costs no more than "
                             "reading a recorded video while the run goes on")
@@ -248,7 +259,9 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             last_ns = capture_ns
             att = ns_attachment(capture_ns)
             true_centre = source.true_centre(frame.index) if hasattr(source, "true_centre") else None
-            pub_image.put(encode_image(frame.image, capture_ns, frame.index), attachment=att)
+            packed = published_image(frame, cfg.image_format, source.image_format)
+            pub_image.put(encode_image(frame.image, capture_ns, frame.index) if packed is None else
+                          encode_compressed(packed[1], packed[0], capture_ns, frame.index), attachment=att)
             segments.populate()  # the pool, once the first frame has created it
             pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)

@@ -154,7 +154,8 @@ class Pipeline:
                  frames: int | None = None, pace: str = "consumer", viewer: bool = True, stream: str | None = None,
                  name: str | None = None, log_dir: str | Path | None = None, shared_memory: bool = True,
                  prerender: bool = False, multi=None, supervise: bool = True, on_restart=None,
-                 recorder_options: dict | None = None, viewer_options: dict | None = None):
+                 recorder_options: dict | None = None, viewer_options: dict | None = None,
+                 image_format: str = "auto"):
         """``supervise``: restart a dead detector, recorder or viewer (at most ``MAX_RESTARTS``
         times each), end the run on a dead router, tracker or ingest. ``on_restart(pipeline,
         service)`` is called after each restart (fault-injection tests). ``recorder_options``:
@@ -185,6 +186,8 @@ class Pipeline:
         self.logs: dict[str, object] = {}
         self.supervise, self.on_restart = supervise, on_restart
         self.recorder_options = dict(recorder_options or {})
+        self.image_format = image_format
+        """How frames go on the bus (common.sources.published): auto, raw, png, jpeg[:Q]."""
         self.viewer_options = dict(viewer_options or {})
         if self.viewer_options.get("out"):  # the .rrd where the caller wants it
             self.rrd = str(self.viewer_options.pop("out")) if viewer else None
@@ -239,7 +242,7 @@ class Pipeline:
             waits = [s for s in self.services if s != "ingest"]
             cfg.write_text(json.dumps({"source": self.source, "frames": self.frames, "pace": self.pace,
                                        "wait_for": waits, "run_config": json.dumps(run_config),
-                                       "prerender": self.prerender}))
+                                       "prerender": self.prerender, "image_format": self.image_format}))
             return base + ["--config", str(cfg)]
         return base
 

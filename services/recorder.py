@@ -107,11 +107,22 @@ class McapSink:
         self.metadata_written: set[str] = set()
         self.flush()  # the header on disk at once: even a file cut at once is an MCAP file's start
 
-    def channel(self, topic: str) -> int:
+    def channel(self, topic: str, data: bytes = b"") -> int:
+        """The topic's channel, registered with its first message: ``frame/image`` is a
+        foxglove.CompressedImage channel when that message is one, else a RawImage one."""
         ch = self.channels.get(topic)
         if ch is not None:
             return ch
         cls = message_class(topic)
+        if topic == "frame/image" and data:
+            from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+
+            from common.msgs.image_wire import is_compressed
+
+            try:
+                cls = CompressedImage if is_compressed(data) else cls
+            except ValueError:
+                pass
         if cls is None:
             ch = self.writer.register_channel(topic=topic, message_encoding="", schema_id=0)
         else:
@@ -127,7 +138,7 @@ class McapSink:
 
     def write(self, topic: str, data: bytes, log_time: int, publish_time: int) -> None:
         self.sequence += 1
-        self.writer.add_message(self.channel(topic), log_time=log_time, data=data, publish_time=publish_time,
+        self.writer.add_message(self.channel(topic, data), log_time=log_time, data=data, publish_time=publish_time,
                                 sequence=self.sequence)
         self.counts[topic] = self.counts.get(topic, 0) + 1
         end = self.fh.tell()
@@ -229,10 +240,11 @@ def image_index(data: bytes) -> int:
     from common.msgs.image_wire import decode_frame
 
     try:
-        index, msg, image = decode_frame(data)
+        index, msg, image = decode_frame(data, pixels=False)  # a compressed one is not decoded here
     except Exception as exc:  # noqa: BLE001 - protobuf and the wire reader raise several types
         raise Invalid("undecodable", f"not a frame image: {type(exc).__name__}") from None
-    check_image_size(image.shape[1], image.shape[0])
+    if image is not None:
+        check_image_size(image.shape[1], image.shape[0])
     return index
 
 

@@ -624,7 +624,9 @@ def mcap_to_rrd(mcap_path: str | os.PathLike, rrd_path: str | os.PathLike, *, sp
             for topic, log_time, data in stream_messages(str(mcap_path), None, report, kinds=kinds):
                 cls = message_class(topic)
                 encoding, schema = kinds.get(topic, ("", None))
-                if cls is not None and (encoding != "protobuf" or schema != cls.DESCRIPTOR.full_name):
+                expected = {cls.DESCRIPTOR.full_name} | ({"foxglove.CompressedImage"} if topic == "frame/image" else set()) \
+                    if cls is not None else set()
+                if cls is not None and (encoding != "protobuf" or schema not in expected):
                     logger.stats["messages"] += 1
                     logger.stats["skipped"] += 1
                     log.warning("channel %s: encoding %r schema %r, expected protobuf %s; skipped",

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+
 from . import RawImage
 
 _DATA = RawImage.DESCRIPTOR.fields_by_name["data"].number
@@ -66,11 +68,13 @@ def _read_varint(buf, i: int) -> tuple[int, int]:
         shift += 7
 
 
-def decode_frame(buf: bytes) -> tuple[int, RawImage, np.ndarray]:
-    """(frame index, the message without its pixels, the pixels) of a ``frame/image`` payload:
-    the index from :data:`INDEX_FIELD`, else from a numeric ``frame_id``; ValueError when there
-    is neither, or as :func:`decode_image`."""
-    index, msg, image = _decode(buf)
+def decode_frame(buf: bytes, pixels: bool = True) -> tuple[int, object, np.ndarray | None]:
+    """(frame index, the message without its pixels, uint8 RGB (H, W, 3)) of a ``frame/image``
+    payload, a foxglove.RawImage (the pixels a read-only view into ``buf``) or a
+    foxglove.CompressedImage (JPEG or PNG, decoded; ``pixels`` False: not decoded, None). The
+    index from :data:`INDEX_FIELD`, else from a numeric ``frame_id``. ValueError (or protobuf's
+    DecodeError) when malformed, or when there is no index."""
+    index, msg, image = _decode(buf, pixels)
     if index is None:
         fid = msg.frame_id.strip()
         if not fid.isdigit():
@@ -83,40 +87,81 @@ def decode_image(buf: bytes) -> tuple[RawImage, np.ndarray]:
     """(the message without its pixels, uint8 RGB (H, W, 3) read-only view into ``buf``) of the
     wire bytes of a RawImage; ValueError (or protobuf's DecodeError) when malformed, with the
     same geometry checks as :func:`common.msgs.msg_to_image`."""
-    _, msg, image = _decode(buf)
+    _, msg, image = _decode(buf, True)
+    if not isinstance(msg, RawImage):
+        raise ValueError("a compressed image, not a RawImage")
     return msg, image
 
 
-def _decode(buf: bytes) -> tuple[int | None, RawImage, np.ndarray]:
-    head, data, i, n = [], None, 0, len(buf)
-    index = None
+def is_compressed(buf: bytes) -> bool:
+    """A foxglove.CompressedImage's bytes (its field 2 is the data), not a RawImage's (field 2 is
+    the width); ValueError when malformed."""
+    return any(number == 2 and wire == 2 for number, wire, *_ in _fields(buf))
+
+
+def encode_compressed(data: bytes, fmt: str, capture_ns: int, index: int | None,
+                      frame_id: str = CAMERA_FRAME) -> bytes:
+    """The wire bytes of a foxglove.CompressedImage of ``data`` (``fmt`` jpeg or png) with the
+    frame's ``index`` in :data:`INDEX_FIELD`."""
+    head = CompressedImage(frame_id=frame_id, format=fmt)
+    head.timestamp.FromNanoseconds(int(capture_ns))
+    extra = b"" if index is None else _varint(INDEX_FIELD << 3) + _varint(int(index))
+    return head.SerializeToString() + extra + _varint(2 << 3 | 2) + _varint(len(data)) + bytes(data)
+
+
+COMPRESSED_FORMATS = ("jpeg", "png")
+
+
+def _fields(buf):
+    """(number, wire type, start, end, value) of each top-level field: value is the varint, or
+    (offset, length) of a length-delimited field's bytes."""
+    i, n = 0, len(buf)
     while i < n:
         start = i
         key, i = _read_varint(buf, i)
         wire = key & 7
+        value = None
         if wire == 0:
             value, i = _read_varint(buf, i)
-            if key >> 3 == INDEX_FIELD:
-                index = value
-                continue
         elif wire == 1:
             i += 8
         elif wire == 5:
             i += 4
         elif wire == 2:
             length, i = _read_varint(buf, i)
-            if key >> 3 == _DATA:
-                data = (i, length)
-                i += length
-                if i > n:
-                    raise ValueError("truncated image data")
-                continue
+            value = (i, length)
             i += length
         else:
             raise ValueError(f"unsupported protobuf wire type {wire}")
         if i > n:
-            raise ValueError("truncated protobuf field")
-        head.append(bytes(buf[start:i]))
+            raise ValueError("truncated protobuf field" if wire != 2 else "truncated image data")
+        yield key >> 3, wire, start, i, value
+
+
+def _decode(buf: bytes, pixels: bool) -> tuple[int | None, object, np.ndarray | None]:
+    fields = list(_fields(buf))
+    compressed = any(number == 2 and wire == 2 for number, wire, *_ in fields)
+    data_field = 2 if compressed else _DATA
+    head, data, index = [], None, None
+    for number, wire, start, end, value in fields:
+        if number == INDEX_FIELD and wire == 0:
+            index = value
+        elif number == data_field and wire == 2:
+            data = value
+        else:
+            head.append(bytes(buf[start:end]))
+    if compressed:
+        msg = CompressedImage.FromString(b"".join(head))
+        if msg.format not in COMPRESSED_FORMATS:
+            raise ValueError(f"unsupported image format {msg.format!r} (expected jpeg or png)")
+        if data is None or data[1] == 0:
+            raise ValueError("compressed image without data")
+        if not pixels:
+            return index, msg, None
+        from common.imageio import decode_rgb
+
+        offset, length = data
+        return index, msg, decode_rgb(memoryview(buf)[offset:offset + length])
     msg = RawImage.FromString(b"".join(head))
     if msg.encoding != "rgb8":
         raise ValueError(f"unsupported image encoding {msg.encoding!r} (expected rgb8)")

@@ -128,16 +128,20 @@ class FolderSource(Source):
         return self.truth is not None
 
     def frame(self, i: int) -> Frame:
-        from common.imageio import ImageReadError, read_rgb
+        from common.imageio import ImageReadError, decode_rgb
 
+        path = self.files[i]
         try:
-            img = read_rgb(self.files[i])
-        except ImageReadError as exc:
-            raise SourceError(str(exc)) from None
+            data = path.read_bytes()
+            img = decode_rgb(data)
+        except (OSError, ImageReadError):
+            raise SourceError(f"{path}: not a readable image (OpenCV could not decode it)") from None
         truth = None
         if self.truth is not None:
             truth = GroundTruth(box=self.truth[i])
-        return Frame(index=i, time=i / self.fps, image=img, truth=truth)
+        fmt = {".jpg": "jpeg", ".jpeg": "jpeg", ".png": "png"}.get(path.suffix.lower())
+        return Frame(index=i, time=i / self.fps, image=img, truth=truth,
+                     encoded=(fmt, data) if fmt is not None else None)
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
@@ -145,6 +149,8 @@ class FolderSource(Source):
 
 
 class VideoSource(Source):
+    image_format = "jpeg:95"
+
     def __init__(self, path: Path, n_frames: int | None = None):
         """``n_frames`` keeps only the first frames."""
         path = Path(path)
@@ -183,6 +189,7 @@ class VideoSource(Source):
 
 class CameraSource(Source):
     live = True
+    image_format = "jpeg:95"
 
     def __init__(self, device: int, max_frames: int | None = None):
         self.device = device
@@ -221,7 +228,7 @@ class PrerenderedSource(Source):
             raise SourceError(f"{source.name}: prerendering {len(source)} frames needs {need / 2**30:.1f} GiB "
                               f"(limit {max_bytes / 2**30:.1f} GiB); use fewer frames or no prerendering")
         self.inner = source
-        self.name, self.fps = source.name, source.fps
+        self.name, self.fps, self.image_format = source.name, source.fps, source.image_format
         self.frames = [first] + [source.frame(i) for i in range(1, len(source))]
         if hasattr(source, "true_centre"):  # only what the inner source can answer
             self.true_centre = source.true_centre

@@ -45,6 +45,9 @@ class Frame:
     truth: GroundTruth | None = None
     people: object | None = field(default=None, repr=False)
     """The people scene's :class:`common.scene.people.PeopleTruth` (every person's part centres)."""
+    encoded: tuple[str, bytes] | None = field(default=None, repr=False)
+    """(format, bytes) of the file the frame was read from (``jpeg`` or ``png``), when it has one:
+    published and recorded as they are (``image`` is decoded from these very bytes)."""
 
     @property
     def size(self) -> tuple[int, int]:
@@ -58,6 +61,10 @@ class Source:
     fps: float = 30.0
     live: bool = False
     """True for real-time sources (a camera): consumers may skip stale frames."""
+    image_format: str = "raw"
+    """How its frames go on the bus and into the recording with ``--image-format auto`` when they
+    have no file bytes of their own (:func:`common.sources.published.published_image`): rendered
+    scenes ``raw`` (their per-pixel noise does not compress), video and cameras ``jpeg:95``."""
 
     def __len__(self) -> int:  # pragma: no cover - overridden
         raise TypeError(f"{self.name} has no known length")

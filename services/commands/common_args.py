@@ -74,6 +74,24 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
+def add_image_format_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--image-format", default="auto", metavar="F",
+                   help="frames on the bus and in the recording: auto (a JPEG/PNG file's own bytes; raw for the "
+                   "synthetic scenes; jpeg:95 for video and cameras), raw, png, jpeg or jpeg:QUALITY; run and "
+                   "track with the same format give the same estimates")
+
+
+def published_source(source, spec: str):
+    """``source`` as the bus carries it with image format ``spec`` (UsageError when unknown)."""
+    from services.commands.errors import UsageError
+    from common.sources.published import PublishedSource
+
+    try:
+        return PublishedSource(source, spec)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def open_checked(args):
     """Open the source and the initial box, turning bad input into UsageError."""
     from services.commands.errors import UsageError

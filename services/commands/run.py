@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 import sys
 
-from services.commands.common_args import apply_overrides, positive_int, seed_int
+from services.commands.common_args import add_image_format_argument, apply_overrides, positive_int, seed_int
 
 HELP = "run the multi-process pipeline (ingest, detector, tracker, recorder, viewer)"
 
@@ -44,6 +44,7 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     p.add_argument("--max-size", type=float, metavar="MB", help="split the recording into files of about MB "
                    "megabytes (NAME.split1.mcap, ...), each readable and replayable alone")
     p.add_argument("--max-duration", type=float, metavar="S", help="split the recording every S seconds")
+    add_image_format_argument(p)
     p.add_argument("--rerun", nargs="+", metavar="MODE", help="live Rerun beside the .rrd (Rerun's examples' "
                    "modes): spawn (a viewer), connect [URL] (a running viewer or server; default "
                    f"{DEFAULT_RERUN_URL}), serve [PORT] (viewers connect to the run; default port 9876), "
@@ -129,11 +130,17 @@ def _launch(args, source_spec: str, init, settings, multi) -> int:
                 raise UsageError(f"{flag} must be positive")
             split[key] = value
     live = rerun_options(args.rerun)
+    from common.sources.published import parse_image_format
+
+    try:
+        parse_image_format(args.image_format)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if live and args.no_viewer:
         raise UsageError("--rerun needs the viewer: drop --no-viewer")
     with Pipeline(source_spec, init, settings, out_dir=args.out_dir, frames=args.frames, pace=args.pace,
                   viewer=not args.no_viewer, multi=multi, recorder_options=split or None,
-                  viewer_options=live or None) as pipe:
+                  viewer_options=live or None, image_format=args.image_format) as pipe:
         if "rerun_serve_port" in live:
             print(f"serving the run to Rerun viewers: rerun --connect rerun+http://127.0.0.1:{live['rerun_serve_port']}/proxy",
                   file=sys.stderr if args.json else sys.stdout, flush=True)

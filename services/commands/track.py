@@ -18,7 +18,8 @@ import argparse
 import csv
 import sys
 
-from services.commands.common_args import add_tracking_arguments, open_checked, point_estimate, settings_for
+from services.commands.common_args import (add_image_format_argument, add_tracking_arguments, open_checked,
+                                           point_estimate, published_source, settings_for)
 
 HELP = "track a target through a video, folder or the synthetic scene (CSV out)"
 
@@ -26,6 +27,7 @@ HELP = "track a target through a video, folder or the synthetic scene (CSV out)"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_tracking_arguments(p, multi_target=True)
     p.add_argument("--out", metavar="FILE.csv", help="write the CSV here (default: stdout)")
+    add_image_format_argument(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
     if args.filter in MULTI_METHODS:
         return run_multi(args)
     source, init = open_checked(args)
+    source = published_source(source, args.image_format)  # the frames as `run` publishes them
     settings = settings_for(args, source, args.filter)
 
     def rows():
