@@ -55,7 +55,7 @@ class IngestSettings(BaseModel):
     start_ns: int | None = Field(None, description="time base: capture_ns of frame 0 (default: now)")
     run_config: str | None = Field(None, description="RunConfig (JSON) to publish before the first frame")
     image_format: str = Field("auto", description="frames on the bus and in the recording: auto (a JPEG or PNG "
-                              "file's own bytes, else raw for rendered scenes and jpeg:95 for video and cameras), "
+                              "file's own bytes, else raw for rendered scenes and jpeg:90 for video and cameras), "
                               "raw, png (lossless), jpeg or jpeg:QUALITY (lossy: every consumer decodes the "
                               "published bytes); see common.sources.published")
     prerender: bool = Field(False, description="read or render every frame before the first is published "

@@ -216,7 +216,9 @@ class Pipeline:
                 cfg = Path(self.tmp.name) / "recorder.json"
                 cfg.write_text(json.dumps(self.recorder_options))
                 base += ["--config", str(cfg)]
-            return base + ["--out", out] + (["--compression", "none"] if self.incompressible() else [])
+            if "compression" not in self.recorder_options and self.incompressible():
+                base += ["--compression", "none"]
+            return base + ["--out", out]
         if service == "viewer":
             if self.viewer_options:
                 cfg = Path(self.tmp.name) / "viewer.json"

@@ -30,6 +30,7 @@ from common.recording import run_metadata
 from services import options
 from services.direct_file import DirectFile
 from common.msgs import TOPICS, Estimate, FrameInfo, ServiceStatus
+from common.record.order import LogTimeOrder
 from common.validation import FrameOrder, Invalid, check_estimate, check_frame_info, check_image_size, check_status, decode, max_bytes
 from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
                           open_session, payload_bytes, publisher)
@@ -42,7 +43,8 @@ class RecorderSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     out: str = Field(description="MCAP file to write")
-    compression: Literal["lz4", "none"] = Field("lz4", description="chunk compression")
+    compression: Literal["lz4", "zstd", "none"] = Field("lz4", description="chunk compression: lz4 (fast), zstd "
+                                                        "(smaller, more CPU) or none")
     chunk_size: int = Field(256 << 10, ge=1 << 16, description="bytes per chunk (a chunk is the unit lost on SIGKILL); "
                             "a frame larger than this closes its chunk at once")
     image_every_s: float = Field(0.0, ge=0, description="keep at most one frame image per this many seconds of "
@@ -50,6 +52,8 @@ class RecorderSettings(BaseModel):
                                  "recording of every 1280x720 frame would be 8 GB a minute")
     simulate_disk_bytes: int | None = Field(None, ge=0, description="testing: the disk holds this many bytes of the "
                                             "file, and writes beyond raise ENOSPC as a full disk would")
+    reorder_s: float = Field(0.25, ge=0, description="messages are held this long in log (capture) time and "
+                             "written sorted by it (a frame's estimate arrives after the next frame's image)")
     max_size_mb: float | None = Field(None, gt=0, description="split the recording into files of about this many "
                                       "MB (NAME.split1.mcap, NAME.split2.mcap, ... after NAME.mcap), each closed "
                                       "and readable alone; a split falls before a frame image")
@@ -97,7 +101,7 @@ class McapSink:
 
         self.boundaries: deque[tuple[int, int]] = deque([(0, 0)], maxlen=4096)
         """(file length, messages) where the file ended on a whole record, the latest ones."""
-        comp = CompressionType.LZ4 if compression == "lz4" else CompressionType.NONE
+        comp = {"lz4": CompressionType.LZ4, "zstd": CompressionType.ZSTD}.get(compression, CompressionType.NONE)
         self.writer = Writer(self.fh, chunk_size=chunk_size, compression=comp)
         self.writer.start(profile="protobuf", library="polartrack")
         self.schemas: dict[str, int] = {}
@@ -273,6 +277,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
     prefix = bus.key("")
     services = set(bus.ids)
     info_order, image_order = FrameOrder(), FrameOrder()
+    order = LogTimeOrder(int(cfg.reorder_s * 1e9))
     full: list[str] = []
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("**"), inbox.callback("all"))
@@ -310,6 +315,17 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                 return False
             return True
 
+        def write_sorted(items) -> None:
+            """Into the file, in log-time order (:class:`common.record.order.LogTimeOrder`)."""
+            try:
+                for topic, data, log_time, now in items:
+                    if not full:
+                        sink.write(topic, data, log_time, now)
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC:
+                    raise
+                full.append(f"disk full (ENOSPC) writing {cfg.out}")
+
         def write_one(sample) -> str:
             key = str(sample.key_expr)
             topic = key[len(prefix):] if key.startswith(prefix) else key
@@ -319,12 +335,13 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                 return ""
             now = time.time_ns()
             log_time = attachment_ns(sample)
-            try:
-                sink.write(topic, data, log_time if log_time is not None else now, now)
-            except OSError as exc:
-                if exc.errno != errno.ENOSPC:
-                    raise
-                full.append(f"disk full (ENOSPC) writing {cfg.out}")
+            log_time = log_time if log_time is not None else now
+            if topic.startswith("status/") and order.newest is not None:
+                # a service's periodic report, stamped by its own clock: recorded at the run's
+                # time base (the newest capture time seen), where it belongs among the frames
+                log_time = order.newest
+            write_sorted(order.push(log_time, (topic, data, log_time, now)))
+            if full:
                 return ""
             if topic == "run/config":
                 try:
@@ -368,6 +385,10 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                 while (s := inbox.pop("all")) is not None and not full:
                     write_one(s)
                 time.sleep(0.02)
+        write_sorted(order.drain())
+        if order.late:
+            log.info("%d messages arrived more than %.2f s of log time late (written out of order)",
+                     order.late, cfg.reorder_s)
         if full:
             c.add("errors")
         status.final()
@@ -392,7 +413,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m services.recorder", description=__doc__)
     options.add_bus_arguments(p)
     p.add_argument("--out", help="MCAP file to write")
-    p.add_argument("--compression", choices=["lz4", "none"], help="chunk compression")
+    p.add_argument("--compression", choices=["lz4", "zstd", "none"], help="chunk compression")
     p.add_argument("--max-size-mb", dest="max_size_mb", type=float, help="split into files of about this many MB")
     p.add_argument("--max-duration-s", dest="max_duration_s", type=float, help="split every this many seconds")
     args = p.parse_args(argv)

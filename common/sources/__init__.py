@@ -149,7 +149,7 @@ class FolderSource(Source):
 
 
 class VideoSource(Source):
-    image_format = "jpeg:95"
+    image_format = "jpeg:90"
 
     def __init__(self, path: Path, n_frames: int | None = None):
         """``n_frames`` keeps only the first frames."""
@@ -189,7 +189,7 @@ class VideoSource(Source):
 
 class CameraSource(Source):
     live = True
-    image_format = "jpeg:95"
+    image_format = "jpeg:90"
 
     def __init__(self, device: int, max_frames: int | None = None):
         self.device = device

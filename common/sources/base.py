@@ -64,7 +64,7 @@ class Source:
     image_format: str = "raw"
     """How its frames go on the bus and into the recording with ``--image-format auto`` when they
     have no file bytes of their own (:func:`common.sources.published.published_image`): rendered
-    scenes ``raw`` (their per-pixel noise does not compress), video and cameras ``jpeg:95``."""
+    scenes ``raw`` (their per-pixel noise does not compress), video and cameras ``jpeg:90``."""
 
     def __len__(self) -> int:  # pragma: no cover - overridden
         raise TypeError(f"{self.name} has no known length")

@@ -3,7 +3,7 @@
 
 - ``auto``: a frame read from a JPEG or PNG file goes out as those very bytes; other frames as
   their source prefers (:attr:`common.sources.base.Source.image_format`: raw for rendered
-  scenes, ``jpeg:95`` for video and cameras);
+  scenes, ``jpeg:90`` for video and cameras);
 - ``raw``, ``png`` (lossless), ``jpeg[:QUALITY]`` (lossy, quality 95 by default).
 
 Consumers decode what was published, so a lossy format changes the pixels the tracker sees:

@@ -77,7 +77,7 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
 def add_image_format_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image-format", default="auto", metavar="F",
                    help="frames on the bus and in the recording: auto (a JPEG/PNG file's own bytes; raw for the "
-                   "synthetic scenes; jpeg:95 for video and cameras), raw, png, jpeg or jpeg:QUALITY; run and "
+                   "synthetic scenes; jpeg:90 for video and cameras), raw, png, jpeg or jpeg:QUALITY; run and "
                    "track with the same format give the same estimates")
 
 

@@ -44,6 +44,8 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     p.add_argument("--max-size", type=float, metavar="MB", help="split the recording into files of about MB "
                    "megabytes (NAME.split1.mcap, ...), each readable and replayable alone")
     p.add_argument("--max-duration", type=float, metavar="S", help="split the recording every S seconds")
+    p.add_argument("--compression", choices=["lz4", "zstd", "none"], help="the recording's chunk compression "
+                   "(default lz4; none for the synthetic scenes, whose noise does not compress)")
     add_image_format_argument(p)
     p.add_argument("--rerun", nargs="+", metavar="MODE", help="live Rerun beside the .rrd (Rerun's examples' "
                    "modes): spawn (a viewer), connect [URL] (a running viewer or server; default "
@@ -129,6 +131,8 @@ def _launch(args, source_spec: str, init, settings, multi) -> int:
             if not value > 0:
                 raise UsageError(f"{flag} must be positive")
             split[key] = value
+    if args.compression:
+        split["compression"] = args.compression
     live = rerun_options(args.rerun)
     from common.sources.published import parse_image_format
 
