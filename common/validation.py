@@ -251,7 +251,7 @@ SPEAKERS = {
     "track/estimate": ("tracker",),
     "track/multi_estimate": ("tracker",),
     "track/particles": ("tracker",),
-    "track/annotations": ("tracker",),
+    "track/annotations": ("recorder",),  # drawn by the recorder from the estimates (services/recorder.py)
     "template": ("tracker", "detector"),
     "detector/query": ("detector",),
     "detector/reply": ("detector",),

@@ -146,12 +146,14 @@ class Publisher:
         return getattr(self._pub, name)
 
 
-def publisher(session: zenoh.Session, key: str) -> Publisher:
+def publisher(session: zenoh.Session, key: str, remote_only: bool = False) -> Publisher:
     """A reliable publisher that blocks rather than drops when the link is congested: every
     message must reach the recorder (Zenoh's default for puts is to drop under congestion,
-    which lost whole 2.7 MB frames)."""
+    which lost whole 2.7 MB frames). ``remote_only``: not delivered to this session's own
+    subscribers."""
+    extra = {"allowed_destination": zenoh.Locality.REMOTE} if remote_only else {}
     return Publisher(session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
-                                               reliability=zenoh.Reliability.RELIABLE))
+                                               reliability=zenoh.Reliability.RELIABLE, **extra))
 
 
 def query_options() -> dict:

@@ -29,11 +29,12 @@ from common.msgs import message_class
 from common.recording import run_metadata
 from services import options
 from services.direct_file import DirectFile
-from common.msgs import TOPICS, Estimate, FrameInfo, ServiceStatus
+from common.msgs import TOPICS, Estimate, FrameInfo, MultiEstimate, ParticleCloud, ServiceStatus
+from common.msgs.annotations import TrackDrawing
 from common.record.order import LogTimeOrder
 from common.validation import FrameOrder, Invalid, check_estimate, check_frame_info, check_image_size, check_status, decode, max_bytes
 from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
-                          open_session, payload_bytes, publisher)
+                          ns_attachment, open_session, payload_bytes, publisher)
 from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.recorder")
@@ -282,6 +283,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
     with open_session(bus) as session:
         sub = session.declare_subscriber(bus.key("**"), inbox.callback("all"))
         pub_status = publisher(session, bus.key("status/recorder"))
+        pub_drawing = publisher(session, bus.key("track/annotations"), remote_only=True)
         pub_health = publisher(session, bus.key("health/recorder"))
         token = session.liveliness().declare_token(bus.key("alive/recorder"))
         log.info("recording %s** to %s", prefix, cfg.out)
@@ -315,6 +317,23 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                 return False
             return True
 
+        drawing = TrackDrawing()
+
+        def draw(topic: str, data: bytes, log_time: int) -> list[tuple[int, bytes]]:
+            """The Foxglove annotations this (valid) message completes (common.msgs.annotations)."""
+            try:
+                if topic == "frame/info":
+                    return drawing.info(FrameInfo.FromString(data))
+                if topic == "track/estimate":
+                    return drawing.estimate(Estimate.FromString(data), log_time)
+                if topic == "track/particles":
+                    return drawing.cloud(ParticleCloud.FromString(data))
+                if topic == "track/multi_estimate":
+                    return drawing.multi(MultiEstimate.FromString(data), log_time)
+            except Exception as exc:  # noqa: BLE001 - a drawing never stops the recording
+                guard.log.warning("drawing", f"cannot draw {topic}: {type(exc).__name__}: {exc}")
+            return []
+
         def write_sorted(items) -> None:
             """Into the file, in log-time order (:class:`common.record.order.LogTimeOrder`)."""
             try:
@@ -341,6 +360,9 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                 # time base (the newest capture time seen), where it belongs among the frames
                 log_time = order.newest
             write_sorted(order.push(log_time, (topic, data, log_time, now)))
+            for t, ann in draw(topic, data, log_time):
+                pub_drawing.put(ann, attachment=ns_attachment(t))
+                write_sorted(order.push(t, ("track/annotations", ann, t, now)))
             if full:
                 return ""
             if topic == "run/config":
@@ -385,6 +407,8 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                 while (s := inbox.pop("all")) is not None and not full:
                     write_one(s)
                 time.sleep(0.02)
+        for t, ann in drawing.flush():
+            write_sorted(order.push(t, ("track/annotations", ann, t, time.time_ns())))
         write_sorted(order.drain())
         if order.late:
             log.info("%d messages arrived more than %.2f s of log time late (written out of order)",

@@ -35,7 +35,6 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from common.detector.template import Template
 from common.detector_queries import QueryDetector
 from common.msgs import ScoreQuery, ScoreReply
-from common.msgs.annotations import estimate_annotations, multi_annotations
 from common.msgs.convert import estimate_msg, info_frame, info_homography, particles_msg, template_to_msg
 from common.runner import InitError, Tracker, stabilises
 from common.settings import TrackerSettings
@@ -68,9 +67,6 @@ class TrackerServiceSettings(BaseModel):
         "latency. Keep it well below the detector's max_frames (24): a query must reach the detector "
         "before its frame is dropped there")
     publish_particles: bool = Field(True, description="publish the particle cloud every frame")
-    publish_annotations: bool = Field(True, description="publish foxglove.ImageAnnotations of every estimate on "
-                                      "track/annotations (the box, the particles, the truth when known, p(visible)) "
-                                      "for Foxglove and Rerun's MCAP loader")
     detector_wait_s: float = Field(30.0, ge=0, description="wait this long for the detector at start")
     template_timeout_s: float = Field(30.0, gt=0, description="timeout of the template query (first frame)")
     image_timeout_s: float = Field(5.0, gt=0, description="stabilising: how long a frame info waits for its "
@@ -113,7 +109,6 @@ class SingleTarget:
                                    guard=shell.guard) if self.st.stabilise != "off" else None)
         self.pub_est = publisher(session, bus.key("track/estimate"))
         self.pub_cloud = publisher(session, bus.key("track/particles"))
-        self.pub_ann = publisher(session, bus.key("track/annotations")) if cfg.publish_annotations else None
         self.frame_index = 0
         self.att = b""
         self.detector = QueryDetector(shell.ask, cfg.client, self._publish_template)
@@ -157,13 +152,8 @@ class SingleTarget:
         step_ms = 1e3 * (time.perf_counter() - t0)
         est = estimate_msg(info.index, info.capture_ns, state, st.filter, skipped, step_ms)
         self.pub_est.put(est.SerializeToString(), attachment=self.att)
-        cloud = particles_msg(info.index, state) if cfg.publish_particles or self.pub_ann is not None else None
-        if cfg.publish_particles and cloud is not None:
+        if cfg.publish_particles and (cloud := particles_msg(info.index, state)) is not None:
             self.pub_cloud.put(cloud.SerializeToString(), attachment=self.att)
-        if self.pub_ann is not None:
-            truth = info.truth if info.HasField("truth") else None
-            ann = estimate_annotations(est, info.capture_ns, cloud, truth)
-            self.pub_ann.put(ann.SerializeToString(), attachment=self.att)
         return True
 
     def close(self) -> None:
@@ -180,7 +170,6 @@ class MultiTarget:
         self.cfg, self.shell = cfg, shell
         self.run = MultiRun.from_json(cfg.multi)
         self.pub_est = publisher(shell.session, shell.bus.key("track/multi_estimate"))
-        self.pub_ann = publisher(shell.session, shell.bus.key("track/annotations")) if cfg.publish_annotations else None
         self.ids = itertools.count(1)
         self.tracker = None
         log.info("tracker up (%s, %d targets, %d parts, %d particles)", self.run.method, len(self.run.boxes),
@@ -214,9 +203,6 @@ class MultiTarget:
             return False
         msg.frames_skipped = skipped
         self.pub_est.put(msg.SerializeToString(), attachment=ns_attachment(info.capture_ns))
-        if self.pub_ann is not None:
-            self.pub_ann.put(multi_annotations(msg, info.capture_ns).SerializeToString(),
-                             attachment=ns_attachment(info.capture_ns))
         return True
 
     def close(self) -> None:

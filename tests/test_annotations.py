@@ -61,3 +61,22 @@ def test_multi_target_skeletons_skip_parts_that_are_not_finite():
     points = [[(q.x, q.y) for q in p.points] for p in ann.points if p.type == p.POINTS]
     assert points == [[(0.0, 0.0), (1.0, 1.0), (2.0, 2.0)], [(5.0, 5.0), (7.0, 7.0)]]
     assert not roundtrip(multi_annotations(MultiEstimate(targets=2, parts=3, positions=b"bad"), NS)).points
+
+
+def test_track_drawing_joins_truth_estimate_and_cloud_in_arrival_order():
+    from common.msgs import FrameInfo
+    from common.msgs.annotations import TrackDrawing
+
+    d = TrackDrawing()
+    assert d.info(FrameInfo(index=0, truth=Truth(visible=True, box_x=1, box_y=1, box_w=2, box_h=2))) == []
+    assert d.estimate(Estimate(frame_index=0, x=3.0, y=3.0), 100) == []  # waits for its cloud
+    cloud = ParticleCloud(frame_index=0, count=1, image_xy=pack(np.array([[3.0, 4.0]])))
+    assert d.cloud(ParticleCloud(frame_index=7, count=0)) == []  # another frame's: ignored
+    ((t, data),) = d.cloud(cloud)
+    ann = ImageAnnotations.FromString(data)
+    assert t == 100 and [p.type for p in ann.points] == [ann.points[0].LINE_LOOP, ann.points[0].POINTS]
+    # an estimate without a cloud goes out with the next estimate, or at the flush
+    assert d.estimate(Estimate(frame_index=1, x=1.0, y=1.0), 200) == []
+    ((t1, _),) = d.estimate(Estimate(frame_index=2, x=1.0, y=1.0), 300)
+    ((t2, _),) = d.flush()
+    assert (t1, t2) == (200, 300) and d.flush() == []

@@ -14,7 +14,8 @@ from services.bus import BusUnavailable, BusConfig, TlsConfig, open_session
 from services.launcher import free_ports
 
 REPO = Path(__file__).resolve().parents[1]
-pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl not installed")
+pytestmark = [pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl not installed"),
+              pytest.mark.slow]  # routers and clients on a loopback bus
 
 
 @pytest.fixture(scope="module")

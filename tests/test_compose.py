@@ -35,6 +35,8 @@ from pathlib import Path, PurePosixPath
 
 import pytest
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 REPO = Path(__file__).resolve().parents[1]
 COMPOSE_FILE = REPO / "compose.yaml"
 DEPLOY = REPO / "deploy"

@@ -20,6 +20,8 @@ from common.sources import open_source
 from common.sources.published import PublishedSource, as_published, parse_image_format
 from services.launcher import Pipeline
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 FRAMES = 10
 
 

@@ -39,6 +39,7 @@ def test_split_sink_by_duration_before_frame_images(tmp_path):
         assert info.duration_s == pytest.approx(0.9)
 
 
+@pytest.mark.slow
 def test_a_split_run_replays_part_by_part(tmp_path, capsys):
     from services.cli import main
     from services.launcher import Pipeline

@@ -28,6 +28,7 @@ def entities(rrd: Path) -> dict[str, int]:
     return {line.rsplit(":", 1)[0].strip(): int(line.rsplit(":", 1)[1]) for line in block if ":" in line}
 
 
+@pytest.mark.slow
 def test_connect_streams_the_run_to_a_rerun_server_and_save_keeps_every_frame(tmp_path, capsys):
     port = free_ports(1)[0]
     live = tmp_path / "live.rrd"
@@ -75,6 +76,7 @@ def test_modes_map_to_the_viewer_settings():
     assert rerun_options(None) == {}
 
 
+@pytest.mark.slow
 def test_replay_streams_a_recording_to_a_rerun_server(tmp_path, capsys):
     rec_dir = tmp_path / "rec"
     assert main(["run", "--source", "synthetic:3", "--frames", "4", "--out-dir", str(rec_dir), "--no-progress",

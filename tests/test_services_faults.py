@@ -13,6 +13,8 @@ from common.sources import open_source
 from services.bus import Inbox, ns_attachment, open_session, payload_bytes, publisher, wait_for_alive
 from services.launcher import client_args, free_ports, router_config
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 
 @pytest.fixture()
 def bus_with(tmp_path):

@@ -22,6 +22,8 @@ from common.sources import open_source
 from services.bus import BusConfig, attachment_sender, open_session
 from services.launcher import Pipeline
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 SOURCE = "synthetic:3"
 FRAMES = 40
 SEED = 17
@@ -153,7 +155,7 @@ def fuzz(pipe, stop, armed) -> dict:
                                            lambda: Estimate(frame_index=0, x=float("nan")).SerializeToString()]),
             "track/multi_estimate": ("tracker", [lambda: undecodable(rng, MultiEstimate)]),
             "track/particles": ("tracker", [lambda: undecodable(rng, ParticleCloud)]),
-            "track/annotations": ("tracker", [lambda: undecodable(rng, ImageAnnotations)]),
+            "track/annotations": ("recorder", [lambda: undecodable(rng, ImageAnnotations)]),
             "template": ("tracker", [lambda: undecodable(rng, Template)]),
             "detector/query": ("detector", [lambda: undecodable(rng, ScoreQuery)]),
             "detector/reply": ("detector", [lambda: undecodable(rng, ScoreReply)]),

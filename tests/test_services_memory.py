@@ -10,12 +10,15 @@ import time
 from unittest import mock
 
 import numpy as np
+import pytest
 
 from common.msgs import Estimate, FrameInfo
 from services.bus import BusConfig, Inbox, Stopper, open_session
 from services.commands.bench import RSS_BOUND_MB, RssSampler
 from services.launcher import free_ports
 from services.rerun_log import FLUSH_EVERY, RunLogger
+
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
 
 
 def test_run_logger_flushes_rerun_every_256_messages_without_waiting():

@@ -21,6 +21,8 @@ from common.sources import open_source
 from services.bus import Inbox, ns_attachment, open_session, payload_bytes, publisher, wait_for_alive
 from services.launcher import Pipeline, client_args, free_ports, router_config
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 SOURCE = "people:3:3"  # seed 3, three people
 FRAMES = 10
 PARTS = 2

@@ -15,6 +15,8 @@ from common.sources import open_source
 from parity import parity_settings, rewrite_mcap
 from services.launcher import Pipeline
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 SOURCE = "synthetic:3"
 FRAMES = 24
 

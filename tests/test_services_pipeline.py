@@ -22,6 +22,8 @@ from parity import rewrite_mcap
 from services.bus import wait_for_alive
 from services.launcher import Pipeline, router_config
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 SOURCE = "synthetic:3"
 FRAMES = 12
 

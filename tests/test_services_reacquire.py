@@ -13,6 +13,8 @@ from common.sources import open_source
 from common.settings import profile_for
 from services.launcher import Pipeline
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 SOURCE = "exit:0"
 
 

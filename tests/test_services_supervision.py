@@ -25,6 +25,8 @@ from services.bus import wait_for_alive
 from services.launcher import EXIT_DISK_FULL, Pipeline, router_config
 from services.shm_files import segment_files, segments_mapped_by
 
+pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
+
 SOURCE = "synthetic:3"
 REPO = Path(__file__).resolve().parents[1]
 

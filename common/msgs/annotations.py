@@ -1,7 +1,10 @@
 """The track as Foxglove (and Rerun's MCAP loader) draw it: ``foxglove.ImageAnnotations`` on the
 camera image, built from the project's own messages.
 
-Single target (``track/annotations``): the estimate's oriented box (a line loop; a circle at the
+The recorder draws them (:class:`TrackDrawing`), off the tracker's critical path (see
+``docs/recordings.md``), records them on ``track/annotations`` and publishes them there.
+
+Single target: the estimate's oriented box (a line loop; a circle at the
 centre when the box size is unknown), the particles as points, the ground truth's box when the
 frame has one, and a label with p(visible). Several articulated targets: every part as a point,
 the body model's skeleton as a line list, one colour a target. Every annotation carries the
@@ -125,3 +128,45 @@ def multi_annotations(msg, capture_ns: int) -> ImageAnnotations:
                                             text=f"target {k}", font_size=12.0, text_color=WHITE,
                                             background_color=LABEL_BACKGROUND))
     return out
+
+
+class TrackDrawing:
+    """A run's messages joined into one ``ImageAnnotations`` a frame, as they arrive: the frame's
+    ``FrameInfo`` (its truth), then its ``Estimate``, then its ``ParticleCloud``, which the tracker
+    publishes right after the estimate (without a cloud, the drawing goes out with the next
+    estimate or at :meth:`flush`). A ``MultiEstimate`` is drawn at once. Each method returns
+    the (log time, serialised annotations) completed by that message."""
+
+    def __init__(self, keep: int = 256):
+        self.truth: dict[int, object] = {}
+        self.keep = keep
+        self.pending = None  # (estimate, log time)
+
+    def info(self, info) -> list[tuple[int, bytes]]:
+        if not info.end_of_stream and info.HasField("truth"):
+            self.truth[int(info.index)] = info.truth
+            while len(self.truth) > self.keep:
+                del self.truth[next(iter(self.truth))]
+        return []
+
+    def estimate(self, est, log_time: int) -> list[tuple[int, bytes]]:
+        out = self.flush()
+        self.pending = (est, int(log_time))
+        return out
+
+    def cloud(self, cloud) -> list[tuple[int, bytes]]:
+        if self.pending is None or self.pending[0].frame_index != cloud.frame_index:
+            return []
+        est, t = self.pending
+        self.pending = None
+        return [(t, estimate_annotations(est, t, cloud, self.truth.get(int(est.frame_index))).SerializeToString())]
+
+    def multi(self, msg, log_time: int) -> list[tuple[int, bytes]]:
+        return [(int(log_time), multi_annotations(msg, log_time).SerializeToString())]
+
+    def flush(self) -> list[tuple[int, bytes]]:
+        if self.pending is None:
+            return []
+        est, t = self.pending
+        self.pending = None
+        return [(t, estimate_annotations(est, t, None, self.truth.get(int(est.frame_index))).SerializeToString())]
