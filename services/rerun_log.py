@@ -212,8 +212,26 @@ class RunLogger:
         self._now: tuple[int | None, int | None] = (None, None)  # (frame index, capture ns) being logged
         self._series: dict[str, list[tuple[int | None, int | None, float]]] = {}
         self._series_points = 0
+        self._log_static(rec)
+
+    @staticmethod
+    def _log_static(rec: rr.RecordingStream) -> None:
         for path, (name, colour) in _SERIES.items():
             rec.log(path, rr.SeriesLines(names=name, colors=colour, widths=1.5), static=True)
+
+    def rotate(self, path: str | os.PathLike) -> None:
+        """Go on in a new file ``path`` (.rrd), the same recording (its id: Rerun shows the files
+        opened together as one): the stream is closed and a new one opened, which frees what
+        Rerun held for the old one (``docs/reliability.md``). File-only loggers."""
+        self.flush_series()
+        self.rec.flush()
+        rid = self.rec.get_recording_id()
+        self.rec.disconnect()
+        rec = rr.RecordingStream(APPLICATION_ID, recording_id=rid)
+        rec.save(str(path), default_blueprint=blueprint())
+        self._log_static(rec)
+        self.rec = rec
+        self._set_time(*self._now)
 
     # ------------------------------------------------------------------ construction
     @classmethod

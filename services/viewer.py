@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from pathlib import Path
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -68,6 +69,9 @@ class ViewerSettings(BaseModel):
     jpeg_quality: int = Field(85, ge=1, le=100, description="JPEG quality of the logged frames")
     track_length: int = Field(300, ge=2, le=100_000, description="estimates kept in the drawn track")
     quiet_s: float = Field(1.0, gt=0, le=600, description="after end of stream, stop after this long without messages")
+    rotate_frames: int = Field(3000, ge=0, description="a file-only viewer goes on in a new .rrd part "
+                               "(NAME.split1.rrd, ...; one recording: open the parts together) every this many "
+                               "frames (0: never), which frees what Rerun holds for the run so far")
     max_image_hz: float = Field(10.0, ge=0, description="frame images logged per second of capture time at most "
                                 "(0: every image); the overlays and plots are logged for every frame")
 
@@ -77,6 +81,11 @@ class ViewerSettings(BaseModel):
         if not v.endswith(".rrd"):
             raise ValueError("must be a .rrd file name")
         return v
+
+
+def split_path(path: str, part: int) -> str:
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}.split{part}{p.suffix}"))
 
 
 def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) -> dict:
@@ -102,6 +111,7 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
         log.info("serving the run to Rerun viewers: rerun --connect rerun+http://127.0.0.1:%d/proxy",
                  cfg.rerun_serve_port)
     eos_at: float | None = None
+    rotate = cfg.rotate_frames > 0 and not (spawn or cfg.rerun_connect or cfg.rerun_serve_port)
     try:
         with session:
             subs = [(topic, burst, session.declare_subscriber(bus.key(topic), handler(topic, cap)))
@@ -141,6 +151,11 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
                                 c.add("dropped")  # not decoded, not encoded
                                 continue
                             last_image_ns = ns
+                        if (rotate and topic == "frame/info" and logger.stats["infos"]
+                                and logger.stats["infos"] % cfg.rotate_frames == 0):
+                            part = logger.stats["infos"] // cfg.rotate_frames
+                            logger.rotate(split_path(cfg.out, part))
+                            log.info("Rerun recording continues in %s", split_path(cfg.out, part))
                         eos_before = logger.stats["end_of_stream"]
                         malformed_before = logger.stats["malformed"]
                         try:

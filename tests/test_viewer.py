@@ -167,6 +167,26 @@ def test_two_loggers_in_one_process(tmp_path):
     assert _rows_by_entity(tmp_path / "b.rrd")[0]["/camera/image"] == 1
 
 
+def test_rotate_goes_on_in_a_new_file_of_the_same_recording(tmp_path):
+    """The viewer's long-run bound: the logger closes its stream and goes on in a new .rrd of
+    the same recording id; the two files hold the frames before and after, none lost, none twice."""
+    from rerun.chunk import RrdReader
+
+    msgs = _messages(4)
+    logger = RunLogger.to_file(tmp_path / "run.rrd")
+    for m in msgs[:8]:  # frames 0 and 1
+        assert logger.log_message(*m)
+    logger.rotate(tmp_path / "run.split1.rrd")
+    for m in msgs[8:]:  # frames 2 and 3
+        assert logger.log_message(*m)
+    logger.close()
+    first, _ = _rows_by_entity(tmp_path / "run.rrd")
+    second, _ = _rows_by_entity(tmp_path / "run.split1.rrd")
+    assert first["/camera/image"] == 2 and second["/camera/image"] == 2
+    ids = [[r.recording_id for r in RrdReader(f).recordings()] for f in (tmp_path / "run.rrd", tmp_path / "run.split1.rrd")]
+    assert len(ids[0]) == 1 and ids[0] == ids[1]
+
+
 def test_track_is_bounded():
     import rerun as rr
 

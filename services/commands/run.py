@@ -167,7 +167,13 @@ def _launch(args, source_spec: str, init, settings, multi) -> int:
             why = "split" if ".split" in Path(part).name else "after a restart of the recorder"
             print(f"           {part}   ({why})")
         if result.rrd:
-            print(f"rerun:     {result.rrd}   (open with: rerun {result.rrd})")
+            parts = sorted(Path(result.rrd).parent.glob(Path(result.rrd).stem + ".split*.rrd"),
+                           key=lambda q: int(q.stem.rsplit(".split", 1)[1]))
+            if parts:  # the viewer's parts of one Rerun recording (ViewerSettings.rotate_frames)
+                print(f"rerun:     {result.rrd} and {len(parts)} more parts   "
+                      f"(open together: rerun {result.rrd} {Path(result.rrd).with_name(Path(result.rrd).stem + '.split*.rrd')})")
+            else:
+                print(f"rerun:     {result.rrd}   (open with: rerun {result.rrd})")
             if result.rrd_images is not None:
                 thinned = (" (at most 10 a second; --rerun save PATH.rrd keeps every one)"
                            if result.rrd_images < result.frames else "")
