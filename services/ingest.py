@@ -46,12 +46,6 @@ class IngestSettings(BaseModel):
     consumer_timeout_s: float = Field(10.0, gt=0, description="consumer pacing: give up waiting after this")
     wait_for: list[str] = Field(default_factory=list, description="services to wait for (liveliness) first")
     wait_timeout_s: float = Field(60.0, gt=0)
-    @field_validator("image_format")
-    @classmethod
-    def _image_format(cls, v: str) -> str:
-        parse_image_format(v)
-        return v
-
     start_ns: int | None = Field(None, description="time base: capture_ns of frame 0 (default: now)")
     run_config: str | None = Field(None, description="RunConfig (JSON) to publish before the first frame")
     image_format: str = Field("auto", description="frames on the bus and in the recording: auto (a JPEG or PNG "
@@ -61,6 +55,12 @@ class IngestSettings(BaseModel):
     prerender: bool = Field(False, description="read or render every frame before the first is published "
                             "(seekable sources; memory: all frames), so that the source costs no more than "
                             "reading a recorded video while the run goes on")
+
+    @field_validator("image_format")
+    @classmethod
+    def _image_format(cls, v: str) -> str:
+        parse_image_format(v)
+        return v
 
 
 def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true_centre=None) -> FrameInfo:
