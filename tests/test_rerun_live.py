@@ -5,6 +5,7 @@ summary says how many frame images the .rrd kept; a bad mode is one line."""
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 import time
@@ -28,24 +29,32 @@ def entities(rrd: Path) -> dict[str, int]:
     return {line.rsplit(":", 1)[0].strip(): int(line.rsplit(":", 1)[1]) for line in block if ":" in line}
 
 
-@pytest.mark.slow
-def test_connect_streams_the_run_to_a_rerun_server_and_save_keeps_every_frame(tmp_path, capsys):
+@contextlib.contextmanager
+def rerun_server(live: Path):
+    """Rerun's own headless gRPC server on a free loopback port, writing what it receives to
+    ``live``; yields the URL to connect to, and stops it (what it received is then in the file)."""
     port = free_ports(1)[0]
-    live = tmp_path / "live.rrd"
     server = subprocess.Popen([sys.executable, "-m", "rerun", "--bind", "127.0.0.1", "--port", str(port),
                                "--save", str(live)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                               start_new_session=True)
     try:
         time.sleep(2.0)
         assert server.poll() is None
-        code = main(["run", "--source", "synthetic:3", "--frames", str(FRAMES), "--out-dir", str(tmp_path),
-                     "--no-progress", "--rerun", "connect", f"rerun+http://127.0.0.1:{port}/proxy"])
-        out = capsys.readouterr().out
-        assert code == 0, out
+        yield f"rerun+http://127.0.0.1:{port}/proxy"
         time.sleep(1.0)
     finally:
         server.terminate()
         server.wait(30)
+
+
+@pytest.mark.slow
+def test_connect_streams_the_run_to_a_rerun_server_and_save_keeps_every_frame(tmp_path, capsys):
+    live = tmp_path / "live.rrd"
+    with rerun_server(live) as url:
+        code = main(["run", "--source", "synthetic:3", "--frames", str(FRAMES), "--out-dir", str(tmp_path),
+                     "--no-progress", "--rerun", "connect", url])
+        out = capsys.readouterr().out
+        assert code == 0, out
     got = entities(live)
     assert got.get("/camera/image", 0) >= 1 and got.get("/camera/estimate", 0) >= 1, got
     assert f"of {FRAMES} frame images kept" in out
@@ -83,19 +92,10 @@ def test_replay_streams_a_recording_to_a_rerun_server(tmp_path, capsys):
                  "--no-viewer"]) == 0
     mcap = next(rec_dir.glob("*.mcap"))
     capsys.readouterr()
-    port = free_ports(1)[0]
     live = tmp_path / "live.rrd"
-    server = subprocess.Popen([sys.executable, "-m", "rerun", "--bind", "127.0.0.1", "--port", str(port),
-                               "--save", str(live)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              start_new_session=True)
-    try:
-        time.sleep(2.0)
-        assert main(["replay", str(mcap), "--rerun", "connect", f"rerun+http://127.0.0.1:{port}/proxy"]) == 0
+    with rerun_server(live) as url:
+        assert main(["replay", str(mcap), "--rerun", "connect", url]) == 0
         assert capsys.readouterr().out.startswith("sent ")
-        time.sleep(1.0)
-    finally:
-        server.terminate()
-        server.wait(30)
     got = entities(live)
     assert got.get("/camera/image", 0) >= 1 and got.get("/camera/estimate", 0) >= 1, got
     assert main(["replay", str(mcap), "--rerun", "connect", "--offline"]) == 2
