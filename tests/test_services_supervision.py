@@ -198,12 +198,14 @@ def test_full_disk_stops_the_recorder_cleanly(tmp_path):
 
 
 def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path):
-    """SIGKILL of the recorder and the viewer at frame 8: both restarted, each into a file of
+    """SIGKILL of the recorder and the viewer at frame 20: both restarted, each into a file of
     its own (``.part1``); the first recording is readable up to the kill, the second holds the
     frames after the restart, the gap between them is in the run's restarts."""
     frames = 40
     watch = Watch()
-    inject, _ = kill_at(watch, ["recorder", "viewer"], signal.SIGKILL, pause_source=True)
+    # at frame 20: the recorder holds the last 0.25 s of log time to write it in order (7.5
+    # frames here), so a kill much earlier can find nothing whole on disk yet
+    inject, _ = kill_at(watch, ["recorder", "viewer"], signal.SIGKILL, at=20, pause_source=True)
 
     def restarted(pipe, service):  # the source waits for each new process
         pipe.pause_source()
