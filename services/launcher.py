@@ -628,13 +628,13 @@ class Pipeline:
     def recording_files(self) -> list[str]:
         """Every file the run recorded in order: each recorder's file and its splits
         (``NAME.splitK.mcap``, :class:`services.recorder.SplitSink`) after it."""
-        from services.recorder import SplitSink
+        from common.record import split_path
 
         out = []
         for path in self.recordings:
             out.append(path)
             k = 1
-            while Path(part := SplitSink.part_path(path, k)).exists():
+            while Path(part := split_path(path, k)).exists():
                 out.append(part)
                 k += 1
         return out

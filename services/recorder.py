@@ -31,6 +31,7 @@ from services import options
 from services.direct_file import DirectFile
 from common.msgs import TOPICS, Estimate, FrameInfo, MultiEstimate, ParticleCloud, ServiceStatus
 from common.msgs.annotations import TrackDrawing
+from common.record import split_path
 from common.record.order import LogTimeOrder
 from common.validation import FrameOrder, Invalid, check_estimate, check_frame_info, check_image_size, check_status, decode, max_bytes
 from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
@@ -199,11 +200,6 @@ class SplitSink:
         self.run_meta: dict[str, str] | None = None
         self.total: dict[str, int] = {}
 
-    @staticmethod
-    def part_path(path: str, part: int) -> str:
-        p = Path(path)
-        return str(p.with_name(f"{p.stem}.split{part}{p.suffix}")) if part else path
-
     def _due(self, log_time: int) -> bool:
         if self.max_bytes is not None and self.sink.fh.tell() >= self.max_bytes:
             return True
@@ -214,7 +210,7 @@ class SplitSink:
         if topic == "frame/image" and self.sink.counts.get("frame/image") and self._due(log_time):
             self.close()
             self.part += 1
-            self.paths.append(self.part_path(self.path, self.part))
+            self.paths.append(split_path(self.path, self.part))
             self.sink = McapSink(self.paths[-1], *self.args)
             self.first_ns = None
             if self.run_meta is not None:

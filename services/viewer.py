@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from services import options
 from common.msgs import FrameInfo
+from common.record import split_path
 from common.validation import FrameOrder, Invalid, check_frame_info, decode
 from services.bus import (BusConfig, Counters, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
                           ns_attachment, open_session, payload_bytes, publisher)
@@ -81,11 +82,6 @@ class ViewerSettings(BaseModel):
         if not v.endswith(".rrd"):
             raise ValueError("must be a .rrd file name")
         return v
-
-
-def split_path(path: str, part: int) -> str:
-    p = Path(path)
-    return str(p.with_name(f"{p.stem}.split{part}{p.suffix}"))
 
 
 def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) -> dict:
