@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import logging
 import time
-from pathlib import Path
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, field_validator
