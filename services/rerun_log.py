@@ -70,6 +70,7 @@ from common.msgs import (
     msg_to_image,
     unpack,
 )
+from common.msgs.convert import msg_to_cloud
 from common.msgs.image_wire import decode_frame
 from common.tracking.state import oriented_box_corners
 
@@ -480,11 +481,8 @@ class RunLogger:
     def particles(self, msg: ParticleCloud, capture_ns: int | None = None) -> None:
         """The cloud over the image and on the ground plane, coloured by normalised weight."""
         n = int(msg.count)
-        state = unpack(msg.particles, np.float64, (n, 5))
-        image_xy = unpack(msg.image_xy, np.float64, (n, 2))
-        w = unpack(msg.weights, np.float64, (n,))
-        if msg.p_visible:
-            unpack(msg.p_visible, np.float64, (n,))  # size check only
+        cloud = msg_to_cloud(msg)
+        state, image_xy, w = cloud.states, cloud.image_xy, cloud.weights
         self._set_time(int(msg.frame_index), capture_ns)
         w = np.where(np.isfinite(w) & (w > 0), w, 0.0)
         top = w.max() if n else 0.0

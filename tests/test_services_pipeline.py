@@ -104,7 +104,7 @@ def test_recording_draws_the_track_in_foxglove(recorded_run):
     from mcap.reader import make_reader
     from mcap_protobuf.decoder import DecoderFactory
 
-    from common.msgs import ParticleCloud, unpack
+    from common.msgs.convert import msg_to_cloud
     from common.tracking.state import oriented_box_corners
 
     path = recorded_run["result"].mcap
@@ -132,7 +132,7 @@ def test_recording_draws_the_track_in_foxglove(recorded_run):
         assert ann.texts[0].text.startswith(f"p(visible) {e.p_visible:.2f}")
         (cloud_pts,) = [p for p in ann.points if p.type == p.POINTS]
         c = clouds[e.frame_index]
-        xy = unpack(c.image_xy, np.float64, (c.count, 2))
+        xy = msg_to_cloud(c).image_xy
         assert [(q.x, q.y) for q in cloud_pts.points] == [tuple(v) for v in xy.tolist()]
         assert not math.isnan(box.points[0].x)
 

@@ -25,6 +25,7 @@ from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
 from google.protobuf.timestamp_pb2 import Timestamp
 
 from common.msgs import unpack
+from common.msgs.convert import cloud_field
 from common.tracking.state import oriented_box_corners
 
 ESTIMATE = Color(r=0.9, g=0.1, b=0.1, a=1.0)
@@ -70,7 +71,7 @@ def estimate_annotations(est, capture_ns: int, cloud=None, truth=None) -> ImageA
                                            outline_color=TRUTH))
     if cloud is not None and cloud.count > 0:
         try:
-            xy = unpack(cloud.image_xy, np.float64, (int(cloud.count), 2))
+            xy = cloud_field(cloud.image_xy, int(cloud.count), 2)
         except ValueError:
             xy = np.empty((0, 2))
         xy = xy[:: max(1, -(-len(xy) // MAX_PARTICLES))]

@@ -26,13 +26,47 @@ def estimate_msg(frame_index: int, capture_ns: int, state, filter_name: str, ski
         reacquired=bool(state.reacquired))
 
 
+CLOUD_DTYPE = np.float32
+"""The particle cloud is for display (the Rerun viewer, Foxglove's annotations): float32 holds a
+pixel or a ground position to far below a pixel and halves what every frame's cloud records."""
+
+
 def particles_msg(frame_index: int, state) -> ParticleCloud | None:
     if state.particles is None:
         return None
     n = len(state.particles)
     pv = state.particle_visibility if state.particle_visibility is not None else np.full(n, state.p_visible)
-    return ParticleCloud(frame_index=frame_index, time_s=state.time, count=n, particles=pack(state.particles),
-                         image_xy=pack(state.particles_image), weights=pack(state.weights), p_visible=pack(pv))
+    return ParticleCloud(frame_index=frame_index, time_s=state.time, count=n,
+                         particles=pack(state.particles, CLOUD_DTYPE), image_xy=pack(state.particles_image, CLOUD_DTYPE),
+                         weights=pack(state.weights, CLOUD_DTYPE), p_visible=pack(pv, CLOUD_DTYPE))
+
+
+@dataclass(frozen=True)
+class Cloud:
+    """A decoded ``ParticleCloud``: world states (n, 5: x, vx, y, vy, theta), image positions
+    (n, 2), weights and p(visible) (n,), as float64."""
+
+    states: np.ndarray
+    image_xy: np.ndarray
+    weights: np.ndarray
+    p_visible: np.ndarray | None
+
+
+def cloud_field(data: bytes, n: int, width: int | None) -> np.ndarray:
+    """One array of a ``ParticleCloud``: float32 (what the tracker publishes) or float64 (what
+    recordings before it hold), told apart by the byte count; ValueError for any other size."""
+    shape = (n,) if width is None else (n, width)
+    items = n * (width or 1)
+    dtype = np.float32 if items and len(data) == 4 * items else np.float64
+    return unpack(data, dtype, shape).astype(np.float64)
+
+
+def msg_to_cloud(msg: ParticleCloud) -> Cloud:
+    """The arrays of a cloud; ValueError when a size disagrees with its count."""
+    n = int(msg.count)
+    return Cloud(states=cloud_field(msg.particles, n, 5), image_xy=cloud_field(msg.image_xy, n, 2),
+                 weights=cloud_field(msg.weights, n, None),
+                 p_visible=cloud_field(msg.p_visible, n, None) if msg.p_visible else None)
 
 
 def template_to_msg(t: Template, version: int, frame_index: int) -> TemplateMsg:
