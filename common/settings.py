@@ -243,3 +243,75 @@ def rate_adjusted_settings(fps: float, filter: FilterName = "rbpf", q_motion: fl
     rbpf = RBPFConfig(motion=motion, orientation=orientation, visibility=visibility)
     sir = SIRConfig(motion=motion, orientation=orientation)
     return TrackerSettings(filter=filter, rbpf=rbpf, sir=sir, **kw)
+
+
+def with_overrides(settings: BaseModel, overrides: dict) -> BaseModel:
+    """``settings`` with nested ``overrides`` (tables of its own field names, as a TOML file
+    writes them) applied and validated; ValueError naming the first unknown or bad key."""
+    from pydantic import ValidationError
+
+    data = settings.model_dump()
+
+    def merge(node: dict, over: dict, where: str) -> None:
+        for key, value in over.items():
+            path = f"{where}{key}"
+            if key not in node:
+                raise ValueError(f"no setting {path!r}")
+            if isinstance(value, dict):
+                if not isinstance(node[key], dict):
+                    raise ValueError(f"{path!r} is not a group of settings")
+                merge(node[key], value, path + ".")
+            else:
+                node[key] = value
+
+    merge(data, overrides, "")
+    try:
+        return type(settings).model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise ValueError(f"{'.'.join(str(v) for v in err['loc'])}: {err['msg']}") from None
+
+
+class RunSpec(BaseModel):
+    """What one run tracks, and with which settings: the one place a deployment states it.
+
+    ``deploy/run.toml`` is one (``polartrack config run --source ... --init ...`` writes it);
+    compose's ingest and tracker both read it (``--run``), ingest publishing the resolved run
+    config that the recorder keeps. The settings are the source's profile
+    (:func:`profile_for`: the synthetic scene's calibration, or the real-footage one at the
+    source's frame rate) with ``settings`` applied on top."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    source: str = Field(description="video file, image folder, camera:N or synthetic[:SEED], as the services see it")
+    init_box: tuple[float, float, float, float] = Field(description="the target's box x, y, w, h in the first frame")
+    fps: float | None = Field(None, gt=0, description="the source's frame rate (the profile converts the motion "
+                              "model to it); None: read from the source when a service starts")
+    frames: int | None = Field(None, ge=1, description="only the first N frames")
+    pace: Literal["consumer", "realtime", "max"] = Field(
+        "consumer", description="consumer: each frame waits for the tracker (nothing dropped); realtime: at the "
+        "source's frame rate, stale frames skipped; max: as fast as the source reads")
+    image_format: str = Field("auto", description="frames on the bus and in the recording (see ingest's image_format)")
+    filter: FilterName = Field("rbpf", description="rbpf (Pang), sir (Nelson) or ml (windowed search)")
+    seed: int = Field(0, ge=0, description="seed of the filter's random generator")
+    particles: int | None = Field(None, ge=1, description="particles; None: the profile's")
+    settings: dict = Field(default_factory=dict, description="tracker settings (common.settings.TrackerSettings, "
+                           "nested tables) that replace the profile's")
+
+    def tracker_settings(self) -> TrackerSettings:
+        """The run's settings: the profile for the source, then ``settings``; ValueError (one
+        line) when an override is not a setting or not valid, or the source cannot be read."""
+        from types import SimpleNamespace
+
+        if self.fps is not None:
+            synthetic = self.source == "synthetic" or self.source.startswith("synthetic:")
+            source = SimpleNamespace(name="synthetic" if synthetic else self.source, fps=self.fps)
+        else:
+            from common.sources import SourceError, open_source
+
+            try:
+                source = open_source(self.source, n_frames=self.frames)
+            except SourceError as exc:
+                raise ValueError(str(exc)) from None
+        st = profile_for(source, filter=self.filter, seed=self.seed, particles=self.particles)
+        return with_overrides(st, self.settings) if self.settings else st

@@ -8,10 +8,11 @@ import re
 import sys
 
 from services.commands.errors import UsageError
-from services.commands import bench, benchmark, calibrate, demo, eval as eval_cmd, eval_multi, info, match, replay, run, study, track, track_multi, view
+from services.commands import bench, benchmark, calibrate, config, demo, eval as eval_cmd, eval_multi, info, match, replay, run, study, track, track_multi, view
 
 COMMANDS = {"demo": demo, "run": run, "replay": replay, "view": view, "track": track, "eval": eval_cmd, "calibrate": calibrate, "match": match, "bench": bench, "study": study,
-            "eval-multi": eval_multi, "track-multi": track_multi, "benchmark": benchmark, "info": info}
+            "eval-multi": eval_multi, "track-multi": track_multi, "benchmark": benchmark, "info": info,
+            "config": config}
 
 
 class _Parser(argparse.ArgumentParser):

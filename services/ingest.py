@@ -290,6 +290,17 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
     return c
 
 
+def run_keys(spec, settings, path: str) -> dict:
+    """Ingest's keys from the run file (``--run``): the source and how to send it, and the run
+    config to publish, named after the file (deploy/run.toml: run id "run")."""
+    from pathlib import Path
+
+    from common.record.meta import run_config_json
+
+    return {"source": spec.source, "frames": spec.frames, "pace": spec.pace, "image_format": spec.image_format,
+            "run_config": run_config_json(Path(path).stem, spec.source, spec.init_box, settings, spec.pace)}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m services.ingest", description=__doc__)
     options.add_bus_arguments(p)
@@ -298,8 +309,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pace", choices=["consumer", "realtime", "max"])
     p.add_argument("--wait-for", dest="wait_for", type=lambda t: [s for s in t.split(",") if s],
                    help="comma-separated services to wait for")
+    options.add_run_argument(p)
     args = p.parse_args(argv)
-    bus, cfg = options.load("ingest", args, IngestSettings, ["source", "frames", "pace", "wait_for"])
+    bus, cfg = options.load("ingest", args, IngestSettings, ["source", "frames", "pace", "wait_for"], run=run_keys)
     from services.bus import setup_logging
 
     setup_logging("ingest", args.log_level)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.record.meta import run_config_json
 from common.settings import TrackerSettings
 
 SERVICES = ("recorder", "detector", "tracker", "viewer", "ingest")
@@ -234,16 +235,10 @@ class Pipeline:
             return base + ["--config", str(cfg)]
         if service == "ingest":
             cfg = Path(self.tmp.name) / "ingest.json"
-            run_config = {"run_id": self.name, "source": self.source,
-                          "init_box": [] if self.init_box is None else list(self.init_box),
-                          "settings_json": self.settings.model_dump_json(),
-                          "seed": self.settings.seed if self.multi is None else self.multi.seed,
-                          "versions_json": json.dumps(versions()), "pace": self.pace}
-            if self.multi is not None:
-                run_config["multi_json"] = self.multi.to_json()
+            run_config = run_config_json(self.name, self.source, self.init_box, self.settings, self.pace, self.multi)
             waits = [s for s in self.services if s != "ingest"]
             cfg.write_text(json.dumps({"source": self.source, "frames": self.frames, "pace": self.pace,
-                                       "wait_for": waits, "run_config": json.dumps(run_config),
+                                       "wait_for": waits, "run_config": run_config,
                                        "prerender": self.prerender, "image_format": self.image_format}))
             return base + ["--config", str(cfg)]
         return base
@@ -640,13 +635,3 @@ class Pipeline:
         return out
 
 
-def versions() -> dict[str, str]:
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {"python": sys.version.split()[0]}
-    for pkg in ("polartrack", "numpy", "dtcwt", "opencv-python-headless", "eclipse-zenoh", "mcap", "rerun-sdk", "numba"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:
-            pass
-    return out

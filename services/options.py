@@ -50,9 +50,45 @@ def lower_priority(nice: int) -> None:
         os.nice(nice)
 
 
+def add_run_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--run", metavar="FILE.toml", help="what the run tracks (common.settings.RunSpec: source, "
+                   "init_box, filter, settings; e.g. deploy/run.toml, written by `polartrack config run`)")
+
+
+def read_table(service: str, flag: str, path: str) -> dict:
+    """A TOML (or .json) file's table; a one-line error (exit 2) when it is missing or not valid."""
+    try:
+        with open(path, "rb") as fh:
+            data = json.load(fh) if path.endswith(".json") else tomllib.load(fh)
+    except FileNotFoundError:
+        fail(service, f"{flag} {path}: no such file")
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+        fail(service, f"{flag} {path}: not valid {'JSON' if path.endswith('.json') else 'TOML'} ({exc})")
+    if not isinstance(data, dict):
+        fail(service, f"{flag} {path}: expected a table of keys")
+    return data
+
+
+def load_run(service: str, path: str):
+    """The run file (``--run``): a validated :class:`common.settings.RunSpec` and its resolved
+    tracker settings; a one-line error naming the bad key otherwise."""
+    from common.settings import RunSpec
+
+    try:
+        spec = RunSpec(**read_table(service, "--run", path))
+        return spec, spec.tracker_settings()
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        fail(service, f"--run {path}: {'.'.join(str(p) for p in first['loc']) or 'run'}: {first['msg']} "
+                      f"(got {first.get('input')!r})")
+    except ValueError as exc:
+        fail(service, f"--run {path}: {exc}")
+
+
 def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str],
-         nice_later: bool = False) -> tuple[BusConfig, M]:
-    """Merge the TOML file (if any) and the flags that were given, then validate both models.
+         nice_later: bool = False, run=None) -> tuple[BusConfig, M]:
+    """Merge the run file (``--run``, through ``run(spec, settings, path) -> keys``), the TOML
+    file (if any) and the flags that were given, in that order, then validate both models.
     Also limits the process's OpenCV threads (``--threads``, see :mod:`services.threads`) and
     lowers its priority (``--nice``), unless ``nice_later``: then the service calls
     :func:`lower_priority` itself, once the threads that must keep their priority are up."""
@@ -62,16 +98,10 @@ def load(service: str, args: argparse.Namespace, model: type[M], keys: list[str]
     if not nice_later:
         lower_priority(getattr(args, "nice", 0))
     data: dict = {}
+    if run is not None and getattr(args, "run", None):
+        data = dict(run(*load_run(service, args.run), args.run))
     if args.config:
-        try:
-            with open(args.config, "rb") as fh:
-                data = json.load(fh) if args.config.endswith(".json") else tomllib.load(fh)
-        except FileNotFoundError:
-            fail(service, f"--config {args.config}: no such file")
-        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-            fail(service, f"--config {args.config}: not valid {'JSON' if args.config.endswith('.json') else 'TOML'} ({exc})")
-        if not isinstance(data, dict):
-            fail(service, f"--config {args.config}: expected a table of keys")
+        data |= read_table(service, "--config", args.config)
     bus_data = dict(data.pop("bus", {}))
     for k in ("stream", "mode", "listen", "connect", "shared_memory"):
         v = getattr(args, k, None)

@@ -296,6 +296,12 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
     return c
 
 
+def run_keys(spec, settings, path: str) -> dict:
+    """The tracker's keys from the run file (``--run``): the first box, the resolved settings,
+    and skipping stale frames unless every frame waits for its estimate (consumer pacing)."""
+    return {"init_box": spec.init_box, "settings": settings, "skip_stale": spec.pace != "consumer"}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m services.tracker", description=__doc__)
     options.add_bus_arguments(p)
@@ -305,8 +311,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--skip-stale", dest="skip_stale", action="store_const", const=True, help="live source")
     p.add_argument("--max-lag-frames", dest="max_lag_frames", type=int, metavar="N",
                    help="live source: frames tracked in order while at most N newer ones wait")
+    options.add_run_argument(p)
     args = p.parse_args(argv)
-    bus, cfg = options.load("tracker", args, TrackerServiceSettings, ["init_box", "client", "skip_stale", "max_lag_frames"])
+    bus, cfg = options.load("tracker", args, TrackerServiceSettings, ["init_box", "client", "skip_stale", "max_lag_frames"],
+                            run=run_keys)
     from services.bus import setup_logging
 
     setup_logging("tracker", args.log_level)

@@ -225,16 +225,19 @@ def test_router_config():
 
 
 def load_settings(name: str, data: dict):
-    """Validate a deploy TOML as the service itself does (options.load: bus table + settings)."""
-    from services.bus import BusConfig
+    """Validate a deploy TOML as the service itself does (options.load: the run file's keys for
+    ingest and the tracker, then the bus table and the service's settings)."""
+    from importlib import import_module
 
-    models = {"ingest": ("services.ingest", "IngestSettings"), "detector": ("services.detector", "DetectorSettings"),
-              "tracker": ("services.tracker", "TrackerServiceSettings"),
-              "recorder": ("services.recorder", "RecorderSettings"), "viewer": ("services.viewer", "ViewerSettings")}
-    module, cls = models[name]
-    model = getattr(__import__(module, fromlist=[cls]), cls)
+    from services.bus import BusConfig
+    from services.deploy import model_class
+    from services.options import load_run
+
     data = dict(data)
-    return BusConfig(**data.pop("bus", {})), model(**data)
+    if name in ("ingest", "tracker"):
+        path = str(DEPLOY / "run.toml")
+        data = import_module(f"services.{name}").run_keys(*load_run(name, path), path) | data
+    return BusConfig(**data.pop("bus", {})), model_class(name)(**data)
 
 
 @pytest.mark.parametrize("name", sorted(PROJECT_SERVICES))
@@ -249,29 +252,78 @@ def test_deploy_config(name):
     if name in ("recorder", "viewer"):
         assert PurePosixPath(cfg.out).parent == IN_IMAGE / "recordings"
     if name == "ingest":
-        assert cfg.source.startswith("synthetic") and cfg.pace == "consumer"
         assert set(cfg.wait_for) == {"detector", "tracker", "recorder"}
 
 
-def test_tracker_config_fits_the_synthetic_scene(monkeypatch):
-    """The init box is the synthetic scene's first truth box, the settings its calibrated profile,
-    and ingest's run config (the MCAP's replay metadata) says the same. If this fails after a
-    change of the scene or the profile, regenerate deploy/tracker.toml and deploy/ingest.toml."""
+def test_deploy_files_are_what_the_settings_models_write():
+    """deploy/*.toml are generated (``polartrack config deploy``) from the services' settings
+    models and services/deploy.py: a changed default or key shows here until they are written
+    again."""
+    from services.cli import main
+
+    assert main(["config", "deploy", "--check", "--dir", str(DEPLOY)]) == 0
+
+
+def test_deploy_check_names_a_stale_file(tmp_path, capsys):
+    from services.cli import main
+
+    assert main(["config", "deploy", "--dir", str(tmp_path)]) == 0
+    assert main(["config", "deploy", "--check", "--dir", str(tmp_path)]) == 0
+    (tmp_path / "tracker.toml").write_text((tmp_path / "tracker.toml").read_text() + "skip_stale = true\n")
+    capsys.readouterr()
+    assert main(["config", "deploy", "--check", "--dir", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "tracker.toml" in err and "run.toml" not in err and "polartrack config deploy" in err and "\n" not in err
+
+
+def test_run_file_fits_the_synthetic_scene(monkeypatch):
+    """Ingest and the tracker both take the run from deploy/run.toml: the synthetic scene's first
+    true box and its calibrated profile, and ingest's run config (the MCAP's replay metadata)
+    says the same as the tracker runs with."""
     from common.settings import TrackerSettings, profile_for
     from common.sources import open_source
+    from services import ingest as ingest_svc, tracker as tracker_svc
+    from services.options import load_run
 
     for var in ("PT_JUMP_P", "PT_JUMP_STD", "PT_BETA"):
         monkeypatch.delenv(var, raising=False)
+    path = str(DEPLOY / "run.toml")
+    spec, settings = load_run("test", path)
+    source = open_source(spec.source)
+    assert spec.init_box == source.frame(0).truth.box and spec.fps == source.fps
+    assert settings == profile_for(source, filter="rbpf", seed=0)
+    keys = ingest_svc.run_keys(spec, settings, path)
+    tkeys = tracker_svc.run_keys(spec, settings, path)
+    run = json.loads(keys["run_config"])
+    assert run["source"] == keys["source"] == "synthetic:0" and run["pace"] == keys["pace"] == "consumer"
+    assert tuple(run["init_box"]) == tkeys["init_box"] and tkeys["skip_stale"] is False
+    assert TrackerSettings.model_validate_json(run["settings_json"]) == tkeys["settings"] == settings
+    assert run["seed"] == settings.seed
+    # the services load both files as compose gives them
     _, ingest = load_settings("ingest", tomllib.loads((DEPLOY / "ingest.toml").read_text()))
     _, tracker = load_settings("tracker", tomllib.loads((DEPLOY / "tracker.toml").read_text()))
-    source = open_source(ingest.source)
-    assert tracker.init_box == pytest.approx(source.frame(0).truth.box, abs=1e-9)
-    assert tracker.settings == profile_for(source, filter=tracker.settings.filter, seed=tracker.settings.seed)
-    run = json.loads(ingest.run_config)
-    assert run["source"] == ingest.source and run["pace"] == ingest.pace
-    assert tuple(run["init_box"]) == tracker.init_box
-    assert TrackerSettings.model_validate_json(run["settings_json"]) == tracker.settings
-    assert run["seed"] == tracker.settings.seed
+    assert ingest.source == spec.source and ingest.run_config == keys["run_config"]
+    assert tracker.init_box == spec.init_box and tracker.settings == settings
+
+
+def test_run_file_overrides_reach_the_settings(tmp_path):
+    """A [settings] table replaces the profile's values; a key that is not a setting is refused
+    in one line naming it."""
+    from services.cli import main
+    from services.options import load_run
+
+    out = tmp_path / "run.toml"
+    assert main(["config", "run", "--source", "synthetic:0", "--particles", "123", "--set", "scale.mode=search",
+                 "--out", str(out)]) == 0
+    spec, st = load_run("test", str(out))
+    assert st.particles == 123 and st.scale.mode == "search" and spec.settings == {"scale": {"mode": "search"}}
+    out.write_text(out.read_text().replace('mode = "search"', 'mode = "sideways"'))
+    with pytest.raises(SystemExit) as exc:
+        load_run("test", str(out))
+    assert exc.value.code == 2
+    out.write_text(out.read_text().replace('mode = "sideways"', 'no_such_knob = 1'))
+    with pytest.raises(SystemExit):
+        load_run("test", str(out))
 
 
 # -- every compose service, run locally against a loopback router -------------------------------
@@ -474,3 +526,43 @@ def test_compose_services_start_locally(services, tmp_path):
         assert "run" in rec.metadata, "ingest's run config did not reach the recording"
     if "viewer" in local:
         assert Path(local["viewer"]["out"]).stat().st_size > 0
+
+
+@pytest.mark.parametrize("name", sorted(PROJECT_SERVICES))
+def test_config_dump_lists_every_key_with_its_default(name, capsys):
+    """``config dump SERVICE`` is valid TOML holding every key the service takes, at its default:
+    validated as the service would (with its required keys added), it equals the model's defaults."""
+    from services.bus import BusConfig
+    from services.cli import main
+    from services.deploy import model_class
+
+    assert main(["config", "dump", name]) == 0
+    text = capsys.readouterr().out
+    data = tomllib.loads(text)
+    model = model_class(name)
+    required = {"ingest": {"source": "synthetic:0"}, "tracker": {"init_box": (1.0, 2.0, 3.0, 4.0)},
+                "recorder": {"out": "x.mcap"}, "viewer": {"out": "x.rrd"}}.get(name, {})
+    unset = {k for k, f in model.model_fields.items() if not f.is_required() and f.get_default() is None}
+    skipped = {"settings"} if name == "tracker" else set()  # the filter's: the run file (config run)
+    assert set(data) - {"bus"} == set(model.model_fields) - set(required) - unset - skipped
+    assert all(f"# {k}: unset" in text for k in unset)
+    assert BusConfig(**data.pop("bus")) == BusConfig()
+    assert model(**data, **required) == model(**required)
+
+
+def test_config_run_writes_the_path_the_services_see(tmp_path):
+    from services.cli import main
+    from services.options import load_run
+
+    out = tmp_path / "run.toml"
+    assert main(["config", "run", "--source", "synthetic:3", "--as", "/data/elsewhere.mp4", "--init", "-5,10,20,12",
+                 "--out", str(out)]) == 0
+    spec, st = load_run("test", str(out))
+    assert spec.source == "/data/elsewhere.mp4" and spec.init_box == (-5.0, 10.0, 20.0, 12.0) and spec.fps == 30.0
+    assert st.adaptation.enabled  # not a synthetic: the real-footage profile, at the probed frame rate
+    assert main(["config", "run", "--source", str(tmp_path / "missing.mp4")]) == 2
+    # a null the file cannot hold (read back, the key would take its default): refused, not lost
+    assert main(["config", "run", "--source", "synthetic:0", "--as", "/data/x.mp4", "--set", "scale.target_size_px=null"]) == 2
+    assert main(["config", "run", "--source", "synthetic:0", "--as", "/data/x.mp4", "--set", "scale.target_size_px=24",
+                 "--out", str(out)]) == 0
+    assert load_run("test", str(out))[1].scale.target_size_px == 24.0

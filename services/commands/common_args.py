@@ -136,11 +136,9 @@ def apply_overrides(settings, overrides: list[str]):
     ``KEY=VALUE`` overrides applied (dotted keys, JSON values), validated."""
     import json
 
-    from pydantic import ValidationError
-
+    from common.settings import with_overrides
     from services.commands.errors import UsageError
 
-    data = settings.model_dump()
     for item in overrides:
         key, sep, text = item.partition("=")
         if not sep or not key:
@@ -149,20 +147,17 @@ def apply_overrides(settings, overrides: list[str]):
             value = json.loads(text)
         except ValueError:
             value = text
-        node = data
+        nested: dict = {}
+        node = nested
         parts = key.split(".")
         for part in parts[:-1]:
-            if not isinstance(node.get(part), dict):
-                raise UsageError(f"--set {item!r}: {part!r} is not a group of settings")
-            node = node[part]
-        if parts[-1] not in node:
-            raise UsageError(f"--set {item!r}: no setting {key!r}")
+            node = node.setdefault(part, {})
         node[parts[-1]] = value
-    try:
-        return type(settings).model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        raise UsageError(f"--set: {'.'.join(str(v) for v in err['loc'])}: {err['msg']}") from None
+        try:
+            settings = with_overrides(settings, nested)
+        except ValueError as exc:
+            raise UsageError(f"--set {item!r}: {exc}") from None
+    return settings
 
 
 def point_estimate(state) -> tuple[float, float]:
