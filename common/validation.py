@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.msgs.topics import speakers as topic_speakers
+
 # -- caps -----------------------------------------------------------------------------------
 
 MiB = 1 << 20
@@ -244,22 +246,10 @@ def check_query(q, part_kinds=()) -> None:
 
 # -- who may speak ----------------------------------------------------------------------------
 
-SPEAKERS = {
-    "frame/image": ("ingest",),
-    "frame/info": ("ingest",),
-    "run/config": ("ingest",),
-    "track/estimate": ("tracker",),
-    "track/multi_estimate": ("tracker",),
-    "track/particles": ("tracker",),
-    "track/annotations": ("recorder",),  # drawn by the recorder from the estimates (services/recorder.py)
-    "template": ("tracker", "detector"),
-    "detector/query": ("detector",),
-    "detector/reply": ("detector",),
-    "detector/score": ("detector",),  # the replies to a query
-    "detector/score/query": ("tracker",),  # who may ask the detector
-}
-"""Key suffix -> the services of the run that publish on it; ``status/<s>`` and ``health/<s>``:
-service ``s``."""
+SPEAKERS = topic_speakers()
+"""Key suffix -> the services of the run that publish on it, from the pipeline's graph
+(:mod:`common.msgs.topics`; a query's ``KEY/query``: who may ask); ``status/<s>`` and
+``health/<s>``: service ``s``."""
 
 
 def speakers(key: str) -> tuple[str, ...]:

@@ -8,11 +8,11 @@ import re
 import sys
 
 from services.commands.errors import UsageError
-from services.commands import bench, benchmark, calibrate, config, demo, eval as eval_cmd, eval_multi, info, match, replay, run, study, track, track_multi, view
+from services.commands import bench, benchmark, calibrate, config, demo, eval as eval_cmd, eval_multi, graph, info, match, replay, run, study, track, track_multi, view
 
 COMMANDS = {"demo": demo, "run": run, "replay": replay, "view": view, "track": track, "eval": eval_cmd, "calibrate": calibrate, "match": match, "bench": bench, "study": study,
             "eval-multi": eval_multi, "track-multi": track_multi, "benchmark": benchmark, "info": info,
-            "config": config}
+            "config": config, "graph": graph}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -49,6 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # e.g. `polartrack graph | head`: the reader left, nothing is wrong
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":

@@ -276,7 +276,7 @@ def test_deploy_check_names_a_stale_file(tmp_path, capsys):
     assert "tracker.toml" in err and "run.toml" not in err and "polartrack config deploy" in err and "\n" not in err
 
 
-def test_run_file_fits_the_synthetic_scene(monkeypatch):
+def test_run_file_fits_the_synthetic_scene():
     """Ingest and the tracker both take the run from deploy/run.toml: the synthetic scene's first
     true box and its calibrated profile, and ingest's run config (the MCAP's replay metadata)
     says the same as the tracker runs with."""
@@ -285,8 +285,6 @@ def test_run_file_fits_the_synthetic_scene(monkeypatch):
     from services import ingest as ingest_svc, tracker as tracker_svc
     from services.options import load_run
 
-    for var in ("PT_JUMP_P", "PT_JUMP_STD", "PT_BETA"):
-        monkeypatch.delenv(var, raising=False)
     path = str(DEPLOY / "run.toml")
     spec, settings = load_run("test", path)
     source = open_source(spec.source)
@@ -438,8 +436,6 @@ def test_compose_services_start_locally(services, tmp_path):
     bus = BusConfig(stream=stream, mode="client", connect=[f"tls/localhost:{port}"], tls=tls_as("recorder"))
     commands = {name: local_command(name, cmd, tmp_path, port) for name, cmd in cmds.items()}
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    for var in ("PT_JUMP_P", "PT_JUMP_STD", "PT_BETA"):
-        env.pop(var, None)
     procs: dict[str, subprocess.Popen] = {}
     logs = {}
 

@@ -12,9 +12,7 @@ import pytest
 from common.msgs.image_wire import decode_frame
 from common.record.info import recording_info
 from common.recording import read_recording
-from common.settings import profile_for
-from common.sources import open_source
-from services.recorder import McapSink, SplitSink
+from services.recorder import SplitSink
 
 SOURCE = "synthetic:3"
 FRAMES = 12
@@ -40,13 +38,10 @@ def test_split_sink_by_duration_before_frame_images(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_split_run_replays_part_by_part(tmp_path, capsys):
+def test_a_split_run_replays_part_by_part(tmp_path, capsys, synthetic_pipeline):
     from services.cli import main
-    from services.launcher import Pipeline
 
-    src = open_source(SOURCE, n_frames=FRAMES)
-    with Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src, seed=3), out_dir=tmp_path, frames=FRAMES,
-                  viewer=False, log_dir=tmp_path, recorder_options={"max_size_mb": 8.0}) as pipe:
+    with synthetic_pipeline(SOURCE, FRAMES, seed=3, recorder_options={"max_size_mb": 8.0}) as pipe:
         result = pipe.run(progress=False, timeout=240)
     assert result.ok and result.estimates == FRAMES
     parts = result.recordings
@@ -55,7 +50,7 @@ def test_a_split_run_replays_part_by_part(tmp_path, capsys):
     for p in parts:
         assert Path(p).stat().st_size < 8e6 + 4e6  # the limit plus a frame and its chunk
         rec = read_recording(p)  # no warning: a whole file
-        assert json.loads(rec.run["init_box"]) == list(src.frame(0).truth.box)
+        assert json.loads(rec.run["init_box"]) == list(pipe.init_box)
         frames += [decode_frame(data)[0] for _, data in rec.messages["frame/image"]]
         estimates += [e.frame_index for e in rec.decoded("track/estimate")]
         assert main(["replay", p, "--max", "--json"]) == 0

@@ -6,14 +6,11 @@ port, services as clients, multicast scouting off) and stops them all, whatever 
 
 import json
 import signal
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pytest
 
-from common.msgs import Estimate, FrameInfo, ScoreQuery, ScoreReply, pack
+from common.msgs import Estimate, ScoreQuery, ScoreReply
 from common.recording import offline_retrack, read_recording
 from common.runner import track_frames
 from common.settings import profile_for
@@ -226,18 +223,16 @@ def test_detector_killed_and_restarted(tmp_path):
     assert result.returncodes["tracker"] == 0 and result.returncodes["recorder"] == 0
 
 
-def test_recorder_killed_leaves_a_readable_file(tmp_path):
+def test_recorder_killed_leaves_a_readable_file(synthetic_pipeline):
     from mcap.reader import NonSeekingReader
 
     frames = 30
-    src = open_source(SOURCE, n_frames=frames)
 
     def kill_recorder(pipe, est):
         if est.frame_index == 20:
             pipe.procs["recorder"].send_signal(signal.SIGKILL)
 
-    with Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src), out_dir=tmp_path, frames=frames,
-                  viewer=False, log_dir=tmp_path) as pipe:
+    with synthetic_pipeline(SOURCE, frames) as pipe:
         pipe.run(progress=False, timeout=300, on_estimate=kill_recorder)
         path = pipe.mcap
     n = 0
@@ -250,13 +245,12 @@ def test_recorder_killed_leaves_a_readable_file(tmp_path):
     assert n >= 5  # the frames of every complete chunk survive (a 4 MB chunk holds one raw frame)
 
 
-def test_killed_services_leave_no_shared_memory(tmp_path):
+def test_killed_services_leave_no_shared_memory(synthetic_pipeline):
     """The frames go through Zenoh shared memory; a service killed mid-run (SIGKILL: no clean-up
     of its own) leaves no segment file once the run is over."""
     from services.shm_files import segment_files, segments_mapped_by
 
     frames = 20
-    src = open_source(SOURCE, n_frames=frames)
     during: set[str] = set()
 
     def kill(pipe, est):
@@ -266,8 +260,7 @@ def test_killed_services_leave_no_shared_memory(tmp_path):
                 pipe.procs[service].send_signal(signal.SIGKILL)
                 pipe.procs[service].wait(10)
 
-    with Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src), out_dir=tmp_path, frames=frames,
-                  viewer=False, log_dir=tmp_path) as pipe:
+    with synthetic_pipeline(SOURCE, frames) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=kill)
     # both restarted by the launcher (their new processes stopped at the end)
     assert [(r["service"], r["status"]) for r in result.restarts] == [("detector", -signal.SIGKILL),

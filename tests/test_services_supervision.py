@@ -19,10 +19,8 @@ import pytest
 from common.msgs.image_wire import decode_frame
 
 from common.recording import read_recording
-from common.settings import profile_for
-from common.sources import open_source
 from services.bus import wait_for_alive
-from services.launcher import EXIT_DISK_FULL, Pipeline, router_config
+from services.launcher import EXIT_DISK_FULL, router_config
 from services.shm_files import segment_files, segments_mapped_by
 
 pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
@@ -75,21 +73,21 @@ def resume_when_alive(pipe, service) -> None:
         pipe.resume_source()
 
 
-def pipeline(tmp_path, frames, **kw):
-    src = open_source(SOURCE, n_frames=frames)
-    return Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src, seed=3), out_dir=tmp_path, frames=frames,
-                    viewer=False, log_dir=tmp_path, **kw)
+@pytest.fixture
+def pipeline(synthetic_pipeline):
+    """The run every supervision test starts: the synthetic scene, the profile at seed 3."""
+    return lambda frames, **kw: synthetic_pipeline(SOURCE, frames, seed=3, **kw)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
-def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig):
+def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig, pipeline):
     """Killed (or stopped) at frame 8: restarted by the launcher. The source waits from the kill
     until the new detector is up (its start takes seconds here; a live source would lose that
     many frames), so the outage is the frames already in flight: at most a few unobserved."""
     frames = 40
     watch = Watch()
     inject, _ = kill_at(watch, ["detector"], sig, pause_source=True)
-    with pipeline(tmp_path, frames, on_restart=resume_when_alive) as pipe:
+    with pipeline(frames, on_restart=resume_when_alive) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
     assert [(r["service"], r["status"]) for r in result.restarts] == [("detector", -sig if sig == signal.SIGKILL else 0)]
     gap = result.restarts[0]
@@ -111,11 +109,11 @@ def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig):
 @pytest.mark.parametrize("victim,sig", [("tracker", signal.SIGKILL), ("tracker", signal.SIGTERM),
                                         ("router", signal.SIGKILL), ("ingest", signal.SIGKILL),
                                         ("ingest", signal.SIGTERM)])
-def test_dead_tracker_or_router_ends_the_run_within_seconds(tmp_path, victim, sig):
+def test_dead_tracker_or_router_ends_the_run_within_seconds(tmp_path, victim, sig, pipeline):
     frames = 200
     watch = Watch()
     inject, killed = kill_at(watch, [victim], sig)
-    with pipeline(tmp_path, frames) as pipe:
+    with pipeline(frames) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
         ended = time.monotonic()
     assert killed
@@ -162,14 +160,14 @@ def test_launcher_signal_stops_every_child(tmp_path, sig):
     watch.assert_clean()
 
 
-def test_full_disk_stops_the_recorder_cleanly(tmp_path):
+def test_full_disk_stops_the_recorder_cleanly(tmp_path, pipeline):
     """A disk of 12 MiB (simulated: ENOSPC beyond): the recorder stops, exit 3 with one line, the
     file readable up to its last flush, and the run ends with that reason."""
     from mcap.reader import NonSeekingReader
 
     frames = 60
     watch = Watch()
-    with pipeline(tmp_path, frames, recorder_options={"simulate_disk_bytes": 12 << 20}) as pipe:
+    with pipeline(frames, recorder_options={"simulate_disk_bytes": 12 << 20}) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=lambda p, e: watch.look(p))
         log = pipe.log_text("recorder")
     assert result.failure is not None and result.failure.startswith("recorder: disk full (ENOSPC)"), result.failure
@@ -197,7 +195,7 @@ def test_full_disk_stops_the_recorder_cleanly(tmp_path):
     watch.assert_clean()
 
 
-def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path):
+def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path, pipeline):
     """SIGKILL of the recorder and the viewer at frame 20: both restarted, each into a file of
     its own (``.part1``); the first recording is readable up to the kill, the second holds the
     frames after the restart, the gap between them is in the run's restarts."""
@@ -211,9 +209,7 @@ def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path):
         pipe.pause_source()
         resume_when_alive(pipe, service)
 
-    src = open_source(SOURCE, n_frames=frames)
-    with Pipeline(SOURCE, src.frame(0).truth.box, profile_for(src, seed=3), out_dir=tmp_path, frames=frames,
-                  viewer=True, log_dir=tmp_path, on_restart=restarted) as pipe:
+    with pipeline(frames, viewer=True, on_restart=restarted) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
     assert sorted((r["service"], r["status"]) for r in result.restarts) == [("recorder", -9), ("viewer", -9)]
     assert result.failure is None and not result.ok and result.estimates == frames

@@ -25,20 +25,11 @@ from common.msgs.polartrack.messages_pb2 import (
     Truth,
 )
 
-TOPICS: dict[str, type] = {
-    "frame/image": RawImage,
-    "frame/info": FrameInfo,
-    "detector/query": ScoreQuery,
-    "detector/reply": ScoreReply,
-    "template": Template,
-    "track/estimate": Estimate,
-    "track/particles": ParticleCloud,
-    "track/multi_estimate": MultiEstimate,
-    "track/annotations": ImageAnnotations,
-    "run/config": RunConfig,
-}
-"""Topic suffix (after ``polartrack/<stream>/``) -> message class. Status topics are
-``status/<service>`` (ServiceStatus)."""
+from common.msgs.topics import recorded_messages  # noqa: E402 (the table imports the classes above)
+
+TOPICS: dict[str, type] = recorded_messages()
+"""Recorded topic suffix (after ``polartrack/<stream>/``) -> message class, from the pipeline's
+graph (:mod:`common.msgs.topics`). Status topics are ``status/<service>`` (ServiceStatus)."""
 
 
 def message_class(suffix: str) -> type | None:
