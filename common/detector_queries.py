@@ -26,8 +26,9 @@ import numpy as np
 from common.detector.layout import N_ANGLES, N_ROWS
 from common.detector.matcher import check_hypotheses
 from common.detector.template import Template
-from common.msgs import ScoreQuery, ScoreReply, pack, unpack
-from common.msgs.convert import msg_to_template, pmatrix_from_bytes
+from common.msgs import ScoreQuery, ScoreReply, unpack
+from common.msgs.convert import msg_to_template, pmatrix_from_bytes, score_query
+from common.msgs.convert import reply_scores as codec_reply_scores
 from common.tracking.observation import ObservationUnavailable
 
 Ask = Callable[[ScoreQuery], "ScoreReply | None"]
@@ -42,8 +43,10 @@ def _unpack(data: bytes, dtype, shape: tuple[int, ...]) -> np.ndarray:
 
 def reply_scores(rep: ScoreReply, n: int, angles: int | None) -> tuple[np.ndarray, np.ndarray]:
     """Scores (n,) for ``angles`` None (AT) or (n, angles), and valid (n,), from a reply."""
-    shape = (n,) if angles is None else (n, angles)
-    return _unpack(rep.scores, np.float64, shape), _unpack(rep.valid, np.uint8, (n,)).astype(bool)
+    try:
+        return codec_reply_scores(rep, n, angles)
+    except ValueError as exc:
+        raise ObservationUnavailable(f"detector: malformed reply: {exc}") from None
 
 
 class QueryDetector:
@@ -59,9 +62,8 @@ class QueryDetector:
 
     def query(self, frame, kind: int, hyps: np.ndarray, k: float, one_off: bool = False) -> ScoreReply:
         """The OK reply to one query about ``frame``; ObservationUnavailable otherwise."""
-        q = ScoreQuery(request_id=next(self._ids), client=self.client, frame_index=frame.index, kind=kind,
-                       count=len(hyps), hypotheses=pack(hyps), template_version=self.version, factor=float(k),
-                       one_off=one_off)
+        q = score_query(next(self._ids), self.client, frame.index, kind, hyps, template_version=self.version,
+                        factor=float(k), one_off=one_off)
         rep = self.ask(q)
         if rep is None:
             raise ObservationUnavailable(f"no reply for frame {frame.index}")

@@ -25,6 +25,7 @@ from typing import Callable
 import numpy as np
 
 from common.msgs import ScoreQuery, ScoreReply, pack, unpack
+from common.msgs.convert import score_query
 from common.multitarget.appearance import HistogramConfig, HistogramEvidence
 from common.tracking.observation import ObservationUnavailable
 
@@ -120,8 +121,7 @@ class QueryPartEvidence:
 
     def _query(self, kind: int, boxes: np.ndarray, **fields) -> np.ndarray:
         b = np.asarray(boxes, np.float64).reshape(-1, 4)
-        q = ScoreQuery(request_id=next(self._ids), client=self.client, frame_index=self.frame_index, kind=kind,
-                       count=len(b), hypotheses=pack(b), histogram_json=self._json, **fields)
+        q = score_query(next(self._ids), self.client, self.frame_index, kind, b, histogram_json=self._json, **fields)
         rep = self.ask(q)
         if rep is None:
             raise EvidenceUnavailable(f"no reply for frame {self.frame_index}")

@@ -399,3 +399,28 @@ class Guard:
         except Invalid as exc:
             self.reject(key, exc)
             return False
+
+
+class Counters:
+    """A service's counters (thread-safe), published as ServiceStatus."""
+
+    def __init__(self, service: str):
+        self.service = service
+        self._lock = threading.Lock()
+        self.values = {"received": 0, "published": 0, "malformed": 0, "dropped": 0, "errors": 0}
+
+    def add(self, name: str, n: int = 1) -> None:
+        with self._lock:
+            self.values[name] += n
+
+    def __getitem__(self, name: str) -> int:
+        return self.values[name]
+
+    def status(self, final: bool = False):
+        import psutil
+
+        from common.msgs import ServiceStatus
+
+        cpu = psutil.Process().cpu_times()
+        with self._lock:
+            return ServiceStatus(service=self.service, cpu_s=cpu.user + cpu.system, final=final, **self.values)

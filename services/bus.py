@@ -20,6 +20,9 @@ from typing import Literal
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.msgs.topics import topic_suffix
+from common.validation import Counters  # noqa: F401 (the services' counters: re-exported for them)
+
 log = logging.getLogger("polartrack.bus")
 
 
@@ -97,8 +100,7 @@ class BusConfig(BaseModel):
         return f"polartrack/{self.stream}/{suffix}"
 
     def suffix(self, key: str) -> str:
-        prefix = f"polartrack/{self.stream}/"
-        return key[len(prefix):] if key.startswith(prefix) else key
+        return topic_suffix(key, self.stream)
 
 
 class BusUnavailable(SystemExit):
@@ -200,31 +202,6 @@ def make_guard(bus: BusConfig, service: str, counters: "Counters | None", logger
 def payload_bytes(obj) -> bytes:
     p = getattr(obj, "payload", None)
     return b"" if p is None else p.to_bytes()
-
-
-class Counters:
-    """A service's counters (thread-safe), published as ServiceStatus."""
-
-    def __init__(self, service: str):
-        self.service = service
-        self._lock = threading.Lock()
-        self.values = {"received": 0, "published": 0, "malformed": 0, "dropped": 0, "errors": 0}
-
-    def add(self, name: str, n: int = 1) -> None:
-        with self._lock:
-            self.values[name] += n
-
-    def __getitem__(self, name: str) -> int:
-        return self.values[name]
-
-    def status(self, final: bool = False):
-        import psutil
-
-        from common.msgs import ServiceStatus
-
-        cpu = psutil.Process().cpu_times()
-        with self._lock:
-            return ServiceStatus(service=self.service, cpu_s=cpu.user + cpu.system, final=final, **self.values)
 
 
 class StatusTicker:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import signal
 import threading
 import time
@@ -20,9 +19,10 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from common.msgs import Estimate, FrameInfo, MultiEstimate, Truth, pack
+from common.msgs import Estimate, FrameInfo, MultiEstimate
+from common.msgs.convert import frame_info_msg
 from common.msgs.image_wire import encode_compressed, encode_image
-from common.sources import Frame, PrerenderedSource, SourceError, open_source
+from common.sources import PrerenderedSource, SourceError, open_source
 from common.sources.published import parse_image_format, published_image
 from services import options
 from common.validation import check_estimate, check_multi_estimate
@@ -61,28 +61,6 @@ class IngestSettings(BaseModel):
     def _image_format(cls, v: str) -> str:
         parse_image_format(v)
         return v
-
-
-def frame_info(frame: Frame, capture_ns: int, source_name: str, total: int, true_centre=None) -> FrameInfo:
-    h, w = frame.image.shape[:2]
-    info = FrameInfo(index=frame.index, time_s=frame.time, capture_ns=capture_ns, width=w, height=h,
-                     source=source_name, total_frames=total)
-    if frame.homography is not None:
-        info.homography.extend(float(v) for v in frame.homography.ravel())
-    t = frame.truth
-    if t is not None:
-        nan = math.nan
-        tr = Truth(visible=t.box is not None, angle_deg=nan if t.angle_deg is None else t.angle_deg,
-                   visible_fraction=nan if t.visible_fraction is None else t.visible_fraction)
-        if t.box is not None:
-            tr.box_x, tr.box_y, tr.box_w, tr.box_h = t.box
-        c = true_centre if true_centre is not None else t.centre
-        tr.centre_x, tr.centre_y = c if c is not None else (nan, nan)
-        info.truth.CopyFrom(tr)
-    if frame.people is not None:  # the people scene: every person's 10 part centres
-        info.truth_people = len(frame.people.parts)
-        info.truth_parts = pack(frame.people.parts)
-    return info
 
 
 class Pause:
@@ -263,7 +241,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             pub_image.put(encode_image(frame.image, capture_ns, frame.index) if packed is None else
                           encode_compressed(packed[1], packed[0], capture_ns, frame.index), attachment=att)
             segments.populate()  # the pool, once the first frame has created it
-            pub_info.put(frame_info(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
+            pub_info.put(frame_info_msg(frame, capture_ns, source.name, total, true_centre).SerializeToString(),
                          attachment=att)
             last_published = frame.index
             c.add("published")

@@ -622,7 +622,7 @@ class Pipeline:
 
     def recording_files(self) -> list[str]:
         """Every file the run recorded in order: each recorder's file and its splits
-        (``NAME.splitK.mcap``, :class:`services.recorder.SplitSink`) after it."""
+        (``NAME.splitK.mcap``, :class:`common.record.writer.SplitSink`) after it."""
         from common.record import split_path
 
         out = []

@@ -17,7 +17,8 @@ from pathlib import Path
 
 from common.msgs import Estimate, FrameInfo, MultiEstimate
 from common.validation import FrameOrder, Invalid, check_frame_info, decode
-from common.recording import ReadReport, RecordingError, compare_estimates, read_recording, stream_messages
+from common.record.reader import ReadReport, RecordingError, read_recording, stream_messages
+from common.record.retrack import compare_estimates
 from services.bus import BusConfig, Inbox, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
 from services.launcher import client_args, free_ports, router_config
 
@@ -106,7 +107,7 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
     recorded = rec.decoded(topic)
     wanted = {e.frame_index for e in recorded}
     if not multi:
-        from common.recording import run_settings
+        from common.record.retrack import run_settings
 
         run_settings(rec)  # garbled settings or box: one line here, not a tracker dying later
     try:
@@ -193,7 +194,7 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
             pub_info.put(FrameInfo(end_of_stream=True, index=last_sent + 1).SerializeToString())
             sub.undeclare()
         if multi:
-            from common.multitarget_runner import compare_multi
+            from common.record.retrack import compare_multi
 
             out = compare_multi(recorded, [new[k] for k in sorted(new)])
         else:

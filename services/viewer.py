@@ -3,7 +3,7 @@
 Subscribes to the frame images and infos, estimates, particle clouds, template, run config and
 service statuses of ``polartrack/<stream>/...`` (bounded channels: the Zenoh callbacks do no
 work; images in a ring of the newest eight, so a viewer short of CPU logs fewer images and never
-slows the pipeline), and logs them from its main thread with :class:`services.rerun_log.RunLogger`,
+slows the pipeline), and logs them from its main thread with :class:`common.record.rerun.RunLogger`,
 frame images at most ``max_image_hz`` per second of capture time (decoding and JPEG-encoding
 every 1280x720 frame at 30 fps was most of the viewer's CPU; the rest is logged for every
 frame, and ``polartrack view`` converts a recording with every image). Stops on SIGINT/SIGTERM, or once an end-of-stream frame info has arrived and the bus has been quiet for
@@ -90,7 +90,7 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
     to the viewer filled, and the router, blocking on it, held up every other service's
     messages behind it (the detector got frames 100-170 ms late at the start of a run, and the
     tracker then skipped 40 frames)."""
-    from services.rerun_log import RunLogger, display_available
+    from common.record.rerun import RunLogger, display_available
 
     c = Counters("viewer")
     guard = make_guard(bus, "viewer", c, log)

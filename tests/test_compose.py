@@ -409,7 +409,7 @@ def deploy_router(port: int, certs: Path):
 
 
 def test_compose_services_start_locally(services, tmp_path):
-    from common.recording import read_recording
+    from common.record.reader import read_recording
     from services.bus import BusConfig, TlsConfig, open_session
     from services.launcher import free_ports
 

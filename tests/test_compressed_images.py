@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 
 from common.msgs.convert import estimate_msg
 from common.msgs.image_wire import CAMERA_FRAME, decode_frame
-from common.recording import offline_retrack, read_recording, same_estimate
+from common.record.retrack import offline_retrack, same_estimate
+from common.record.reader import read_recording
 from common.runner import track_frames
 from common.settings import profile_for
 from common.sources import open_source

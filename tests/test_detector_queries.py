@@ -6,22 +6,15 @@ import numpy as np
 import pytest
 
 from common.detector_queries import QueryDetector
-from common.msgs import FrameInfo, ScoreQuery, ScoreReply, pack
-from common.msgs.convert import estimate_msg, info_frame, msg_to_template, template_to_msg
-from common.recording import same_estimate
+from common.msgs import ScoreQuery, ScoreReply, pack
+from common.msgs.convert import estimate_msg, frame_info_msg, info_frame, msg_to_template, template_to_msg
+from common.record.retrack import same_estimate
 from common.runner import Tracker
 from common.sources import open_source
 from parity import parity_settings
-from services.detector import DetectorCore
+from common.detector.server import DetectorCore
 
 FRAMES = 12
-
-
-def frame_info(f) -> FrameInfo:
-    info = FrameInfo(index=f.index, time_s=f.time, width=f.size[0], height=f.size[1])
-    if f.homography is not None:
-        info.homography.extend(f.homography.ravel())
-    return info
 
 
 def test_queries_answered_by_the_detector_core_equal_in_process():
@@ -44,7 +37,7 @@ def test_queries_answered_by_the_detector_core_equal_in_process():
     for f in frames:
         core.add_frame(f.index, f.image, f.time)
         # the remote side sees the frame as the bus describes it, with the pixels (it stabilises)
-        rf = info_frame(frame_info(f), f.image)
+        rf = info_frame(frame_info_msg(f), f.image)
         remote = remote or Tracker.start(rf, box, st, QueryDetector(ask, "t", publish))
         a, b = local.step(f), remote.step(rf)
         assert same_estimate(estimate_msg(f.index, 0, a, "rbpf"), estimate_msg(f.index, 0, b, "rbpf")), f.index

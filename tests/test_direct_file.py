@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from services.direct_file import BLOCK, DirectFile
+from common.record.direct_file import BLOCK, DirectFile
 
 
 def _chunks(rng, total):
@@ -38,7 +38,7 @@ def test_file_holds_exactly_what_was_written(tmp_path, stage):
 def test_flushed_bytes_survive_sigkill(tmp_path):
     """A writer killed with SIGKILL after a flush leaves exactly its bytes."""
     path = tmp_path / "k.bin"
-    code = (f"import os, signal; from services.direct_file import DirectFile\n"
+    code = (f"import os, signal; from common.record.direct_file import DirectFile\n"
             f"f = DirectFile({str(path)!r})\n"
             f"f.write(bytes(range(256)) * 1000 + b'end')\n"
             f"f.flush()\n"

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from common.msgs import RawImage, image_to_msg, msg_to_image
+from common.msgs import RawImage
+from common.msgs.convert import image_to_msg, msg_to_image
 from common.msgs.image_wire import CAMERA_FRAME, decode_frame, decode_image, encode_image
 
 

@@ -11,10 +11,11 @@ import pytest
 from services.cli import main
 from common.msgs import pack
 from services.commands.common_args import boxes_arg
-from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg, same_multi_estimate, track_frames
+from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg, track_frames
+from common.record.retrack import same_multi_estimate
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
 from common.sources import PeopleSource, SourceError, open_source
-from services.detector import DetectorCore
+from common.detector.server import DetectorCore
 
 
 def test_boxes_arg():
@@ -149,7 +150,7 @@ def test_the_cli_names_the_multi_target_filters_as_the_library_does():
 def test_replay_compares_estimates_not_transport_counts():
     """Frames skipped by a live tracker and the timings differ on replay; the estimates must not."""
     from common.msgs import MultiEstimate
-    from common.multitarget_runner import compare_multi
+    from common.record.retrack import compare_multi
 
     a = MultiEstimate(frame_index=3, targets=1, parts=1, positions=pack(np.array([[[1.0, 2.0]]])), frames_skipped=5,
                       step_ms=30.0)

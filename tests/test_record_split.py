@@ -11,8 +11,8 @@ import pytest
 
 from common.msgs.image_wire import decode_frame
 from common.record.info import recording_info
-from common.recording import read_recording
-from services.recorder import SplitSink
+from common.record.reader import read_recording
+from common.record.writer import SplitSink
 
 SOURCE = "synthetic:3"
 FRAMES = 12

@@ -9,29 +9,27 @@ settings or init box), at byte level (a chunk's bytes flipped, a zstd bomb chunk
 
 from __future__ import annotations
 
-import io
 import json
 import struct
 import tracemalloc
 
-import numpy as np
 import pytest
 import zstandard
 from mcap.data_stream import RecordBuilder
-from mcap.records import Chunk, Footer
+from mcap.records import Chunk
 
 from common.detector_queries import QueryDetector
 from common.msgs import FrameInfo, RunConfig, ScoreQuery
 from common.msgs.convert import estimate_msg, info_frame, msg_to_template, template_to_msg
 from common.msgs.image_wire import encode_image
-from common.recording import (MAX_CHUNK_BYTES, RecordingError, offline_retrack, read_recording, run_metadata,
-                              stream_messages)
+from common.record.reader import MAX_CHUNK_BYTES, RecordingError, read_recording, run_metadata, stream_messages
+from common.record.retrack import offline_retrack
 from common.runner import Tracker
 from common.sources import open_source
 from parity import parity_settings, rewrite_mcap
 from services.cli import main
-from services.detector import DetectorCore
-from services.recorder import McapSink
+from common.detector.server import DetectorCore
+from common.record.writer import McapSink
 
 SOURCE = "synthetic:3"
 FRAMES = 12

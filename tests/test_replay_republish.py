@@ -14,7 +14,7 @@ from common.msgs import Estimate, FrameInfo
 from services.bus import BusConfig, open_session, payload_bytes
 from services.cli import main
 from services.launcher import free_ports
-from services.recorder import McapSink
+from common.record.writer import McapSink
 from services.replay import republish
 
 T0 = 5 * 10**9

@@ -8,7 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from common.msgs import FrameInfo, RawImage, ScoreQuery, ScoreReply, ServiceStatus, image_to_msg, pack
+from common.msgs import FrameInfo, ScoreQuery, ScoreReply, ServiceStatus, pack
+from common.msgs.convert import image_to_msg
 from common.sources import open_source
 from services.bus import Inbox, ns_attachment, open_session, payload_bytes, publisher, wait_for_alive
 from services.launcher import client_args, free_ports, router_config
@@ -171,7 +172,7 @@ def test_detector_caches_are_bounded_per_querier():
     names had grown the detector by 2 GB), and queriers with the same client name are kept
     apart by their sender id."""
     from common.detector import Template
-    from services.detector import DetectorCore, DetectorSettings
+    from common.detector.server import DetectorCore, DetectorSettings
 
     frame = open_source("synthetic:1", n_frames=1).frame(0)
     core = DetectorCore(DetectorSettings(max_clients=3))

@@ -15,7 +15,7 @@ import zenoh
 
 from common.msgs import (Estimate, FrameInfo, ImageAnnotations, MultiEstimate, ParticleCloud, RawImage, RunConfig, ScoreQuery,
                          ScoreReply, ServiceStatus, Template, image_to_msg, pack)
-from common.recording import read_recording
+from common.record.reader import read_recording
 from common.runner import track_frames
 from common.settings import profile_for
 from common.sources import open_source

@@ -16,7 +16,7 @@ from common.msgs import Estimate, FrameInfo
 from services.bus import BusConfig, Inbox, Stopper, open_session
 from services.commands.bench import RSS_BOUND_MB, RssSampler
 from services.launcher import free_ports
-from services.rerun_log import FLUSH_EVERY, RunLogger
+from common.record.rerun import FLUSH_EVERY, RunLogger
 
 pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
 

@@ -15,8 +15,10 @@ import pytest
 from common.msgs import ScoreQuery, ScoreReply, ServiceStatus, pack
 from common.msgs.image_wire import encode_image
 from common.multitarget import HistogramEvidence
-from common.multitarget_runner import MultiRun, multi_estimate_msg, same_multi_estimate, track_frames
-from common.recording import offline_retrack, read_recording
+from common.multitarget_runner import MultiRun, multi_estimate_msg, track_frames
+from common.record.retrack import same_multi_estimate
+from common.record.retrack import offline_retrack
+from common.record.reader import read_recording
 from common.sources import open_source
 from services.bus import Inbox, ns_attachment, open_session, payload_bytes, publisher, wait_for_alive
 from services.launcher import Pipeline, client_args, free_ports, router_config
@@ -152,7 +154,7 @@ def test_the_recording_converts_to_rerun_with_skeletons(multi_pipeline, tmp_path
 
     from rerun.chunk import RrdReader
 
-    from services.rerun_log import mcap_to_rrd
+    from common.record.rerun import mcap_to_rrd
 
     rrd = tmp_path / "multi.rrd"
     stats = mcap_to_rrd(multi_pipeline["result"].mcap, rrd)

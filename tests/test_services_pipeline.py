@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from common.msgs import Estimate, ScoreQuery, ScoreReply
-from common.recording import offline_retrack, read_recording
+from common.record.retrack import offline_retrack
+from common.record.reader import read_recording
 from common.runner import track_frames
 from common.settings import profile_for
 from common.sources import open_source

@@ -7,7 +7,8 @@ import pytest
 
 from common.msgs import ScoreQuery
 from common.msgs.convert import estimate_msg
-from common.recording import offline_retrack, read_recording, same_estimate
+from common.record.retrack import offline_retrack, same_estimate
+from common.record.reader import read_recording
 from common.runner import Tracker
 from common.sources import open_source
 from common.settings import profile_for

@@ -18,7 +18,7 @@ import pytest
 
 from common.msgs.image_wire import decode_frame
 
-from common.recording import read_recording
+from common.record.reader import read_recording
 from services.bus import wait_for_alive
 from services.launcher import EXIT_DISK_FULL, router_config
 from services.shm_files import segment_files, segments_mapped_by

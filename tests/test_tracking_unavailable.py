@@ -1,6 +1,5 @@
 """A detector that does not answer is 'no observation': identical to step(t, None), never a crash."""
 
-import numpy as np
 import pytest
 
 from common.tracking import RBPF, SIR, InitialState, RBPFConfig, SIRConfig, WindowedML, WindowedMLConfig

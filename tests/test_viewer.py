@@ -19,8 +19,9 @@ import pytest
 from mcap.writer import Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from common.msgs import TOPICS, Estimate, FrameInfo, ParticleCloud, Truth, image_to_msg, pack
-from services.rerun_log import RunLogger, mcap_to_rrd
+from common.msgs import TOPICS, Estimate, FrameInfo, ParticleCloud, Truth, pack
+from common.msgs.convert import image_to_msg
+from common.record.rerun import RunLogger, mcap_to_rrd
 
 REPO = Path(__file__).resolve().parents[1]
 W, H, N = 64, 48, 20

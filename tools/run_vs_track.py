@@ -3,7 +3,7 @@
 Re-tracks the recorded source in-process (``common.runner.track_frames``, the code behind
 ``polartrack track``) with the recorded initial box and settings, over the frames the recording
 has estimates for, and compares every estimate field by field, bit for bit
-(``common.recording.compare_estimates``). Optionally also checks a ``polartrack track`` CSV
+(``common.record.reader.compare_estimates``). Optionally also checks a ``polartrack track`` CSV
 against the recorded estimates at the CSV's precision.
 
 Multi-target recordings (``--filter epmcmc-elpda|epmcmc-pda|jpda-pf``) are re-tracked with
@@ -21,12 +21,12 @@ import csv
 import json
 import sys
 
-import numpy as np
 
 
 def main(argv: list[str] | None = None) -> int:
     from common.msgs.convert import estimate_msg
-    from common.recording import compare_estimates, read_recording
+    from common.record.retrack import compare_estimates
+    from common.record.reader import read_recording
     from common.runner import track_frames
     from common.settings import TrackerSettings
     from common.sources import open_source
@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _multi(rec, csv_path: str | None) -> int:
-    from common.multitarget_runner import MultiRun, compare_multi, msg_positions, multi_estimate_msg, track_frames
+    from common.multitarget_runner import MultiRun, msg_positions, multi_estimate_msg, track_frames
+    from common.record.retrack import compare_multi
     from common.sources import open_source
 
     mr = MultiRun.from_json(rec.run["multi_json"])

@@ -53,27 +53,5 @@ def unpack(b: bytes, dtype, shape: tuple[int, ...]) -> np.ndarray:
     return np.frombuffer(b, dtype=dt).reshape(shape).astype(np.dtype(dtype).newbyteorder("="))
 
 
-def image_to_msg(image: np.ndarray, capture_ns: int, frame_id: str) -> RawImage:
-    """uint8 RGB (H, W, 3) -> foxglove.RawImage (rgb8)."""
-    h, w = image.shape[:2]
-    msg = RawImage(frame_id=frame_id, width=w, height=h, encoding="rgb8", step=3 * w,
-                   data=np.ascontiguousarray(image, np.uint8).tobytes())
-    msg.timestamp.FromNanoseconds(int(capture_ns))
-    return msg
-
-
-def msg_to_image(msg: RawImage) -> np.ndarray:
-    """foxglove.RawImage (rgb8) -> uint8 (H, W, 3); ValueError for anything malformed."""
-    if msg.encoding != "rgb8":
-        raise ValueError(f"unsupported image encoding {msg.encoding!r} (expected rgb8)")
-    h, w = int(msg.height), int(msg.width)
-    if h <= 0 or w <= 0 or msg.step != 3 * w:
-        raise ValueError(f"bad image geometry {w}x{h} step {msg.step}")
-    data = msg.data  # each read of a bytes field is a copy of the whole image
-    if len(data) != h * msg.step:
-        raise ValueError(f"image data has {len(data)} bytes, expected {h * msg.step} (truncated?)")
-    return np.frombuffer(data, np.uint8).reshape(h, w, 3)
-
-
 __all__ = ["RawImage", "FrameInfo", "Truth", "ScoreQuery", "ScoreReply", "Template", "Estimate", "MultiEstimate", "ParticleCloud",
-           "RunConfig", "ServiceStatus", "ImageAnnotations", "TOPICS", "message_class", "pack", "unpack", "image_to_msg", "msg_to_image"]
+           "RunConfig", "ServiceStatus", "ImageAnnotations", "TOPICS", "message_class", "pack", "unpack"]

@@ -86,7 +86,7 @@ def decode_frame(buf: bytes, pixels: bool = True) -> tuple[int, object, np.ndarr
 def decode_image(buf: bytes) -> tuple[RawImage, np.ndarray]:
     """(the message without its pixels, uint8 RGB (H, W, 3) read-only view into ``buf``) of the
     wire bytes of a RawImage; ValueError (or protobuf's DecodeError) when malformed, with the
-    same geometry checks as :func:`common.msgs.msg_to_image`."""
+    same geometry checks as :func:`common.msgs.convert.msg_to_image`."""
     _, msg, image = _decode(buf, True)
     if not isinstance(msg, RawImage):
         raise ValueError("a compressed image, not a RawImage")

@@ -80,6 +80,19 @@ GRAPH: tuple[Topic, ...] = (
 )
 
 
+def topic_suffix(key: str, stream: str | None = None) -> str:
+    """A full key or an MCAP channel's topic -> its suffix: ``polartrack/<stream>/frame/info`` ->
+    ``frame/info`` (with ``stream``: only that stream's prefix is taken off); a suffix stays."""
+    t = key.lstrip("/")
+    if stream is not None:
+        prefix = f"polartrack/{stream}/"
+        return t[len(prefix):] if t.startswith(prefix) else key
+    if t.startswith("polartrack/"):
+        parts = t.split("/", 2)
+        return parts[2] if len(parts) == 3 else t
+    return t
+
+
 def topic(key: str) -> Topic | None:
     """The declared topic of a concrete key (``status/tracker`` -> ``status/<service>``)."""
     for t in GRAPH:

@@ -301,7 +301,6 @@ class SyntheticScene:
     def decoy_truth(self, i: int) -> Truth | None:
         """The decoy's truth at frame ``i``, None when it is off or out of view (no rendering)."""
         i = self._check(i)
-        cfg = self.config
         if self._decoy is None or not self._decoy.in_view[i]:
             return None
         return self._decoy.truth(i)

@@ -233,7 +233,7 @@ def measure_pipeline(seconds: float = 30.0, particles: int = 500, viewer: bool =
 
     import psutil
 
-    from common.recording import read_recording
+    from common.record.reader import read_recording
     from common.settings import profile_for
     from common.sources import open_source
     from services.launcher import Pipeline

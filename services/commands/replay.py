@@ -47,7 +47,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from services.commands.errors import UsageError
-    from common.recording import RecordingError, offline_retrack
+    from common.record.reader import RecordingError
+    from common.record.retrack import offline_retrack
 
     if args.speed is not None and args.speed <= 0:
         raise UsageError("--speed must be positive")
@@ -123,7 +124,7 @@ def _to_rerun(args: argparse.Namespace) -> int:
 
     from services.commands.errors import UsageError
     from services.commands.run import rerun_options
-    from services.rerun_log import mcap_to_rrd
+    from common.record.rerun import mcap_to_rrd
 
     live = rerun_options(args.rerun)
     with tempfile.TemporaryDirectory(prefix="polartrack-replay-") as tmp:

@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from services.commands.errors import UsageError
-    from services.rerun_log import MCAP_MAGIC, display_available, mcap_to_rrd, open_viewer
+    from common.record.rerun import MCAP_MAGIC, display_available, mcap_to_rrd, open_viewer
 
     src = Path(args.mcap)
     if not src.exists():

@@ -67,14 +67,13 @@ from common.msgs import (
     ServiceStatus,
     Template,
     message_class,
-    msg_to_image,
     unpack,
 )
-from common.msgs.convert import msg_to_cloud
+from common.msgs.convert import msg_to_cloud, msg_to_image
 from common.msgs.image_wire import decode_frame
 from common.tracking.state import oriented_box_corners
 
-log = logging.getLogger("polartrack.rerun_log")
+log = logging.getLogger("polartrack.rerun")
 
 APPLICATION_ID = "polartrack"
 FRAME = "frame"
@@ -605,24 +604,16 @@ class RunLogger:
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def _topic_suffix(topic: str) -> str:
-    t = topic.lstrip("/")
-    if t.startswith("polartrack/"):
-        parts = t.split("/", 2)
-        return parts[2] if len(parts) == 3 else t
-    return t
-
-
 def mcap_to_rrd(mcap_path: str | os.PathLike, rrd_path: str | os.PathLike, *, spawn: bool = False,
                 jpeg_quality: int = 85, track_length: int = 300, connect: str | None = None,
                 serve_port: int | None = None, before_close=None) -> dict:
     """Convert a recording written by the recorder to a Rerun .rrd file. Returns the counts
     (``images``, ``estimates``, ``clouds``, ``malformed``, ...), ``truncated`` (the file ended
     mid-record: converted up to there) and ``seconds``. Raises ``ValueError`` if ``mcap_path``
-    is not an MCAP file, ``OSError`` if it cannot be read. Streamed with :func:`common.recording.stream_messages`
+    is not an MCAP file, ``OSError`` if it cannot be read. Streamed with :func:`common.record.reader.stream_messages`
     (bounded memory; chunks that fail their CRC, state more than 64 MiB decompressed or do not
     decompress skipped and counted in ``records_skipped``)."""
-    from common.recording import ReadReport, RecordingError, stream_messages
+    from common.record.reader import ReadReport, RecordingError, stream_messages
 
     t0 = time.perf_counter()
     mcap_path, rrd_path = Path(mcap_path), Path(rrd_path)
