@@ -445,7 +445,8 @@ class Pipeline:
         from tqdm import tqdm
 
         from common.msgs import Estimate, FrameInfo, MultiEstimate
-        from common.multitarget_runner import msg_positions, people_truth_parts
+        from common.msgs.convert import msg_positions
+        from common.multitarget_runner import people_truth_parts
         from common.validation import (FrameOrder, Guard, Invalid, Senders, check_estimate, check_frame_info,
                                        check_multi_estimate, check_status, parse_rejects)
         from services.bus import Inbox, attachment_sender, payload_bytes

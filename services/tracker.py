@@ -177,7 +177,8 @@ class MultiTarget:
 
     def step(self, info, skipped: int, stopper: Stopper) -> bool:
         from common.multitarget import InitError as MultiInitError
-        from common.multitarget_runner import MultiTracker, multi_estimate_msg
+        from common.msgs.convert import multi_estimate_msg
+        from common.multitarget_runner import MultiTracker
         from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
 
         c, run = self.shell.c, self.run

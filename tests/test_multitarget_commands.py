@@ -11,7 +11,8 @@ import pytest
 from services.cli import main
 from common.msgs import pack
 from services.commands.common_args import boxes_arg
-from common.multitarget_runner import MultiRun, MultiTracker, multi_estimate_msg, track_frames
+from common.msgs.convert import multi_estimate_msg
+from common.multitarget_runner import MultiRun, MultiTracker, track_frames
 from common.record.retrack import same_multi_estimate
 from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
 from common.sources import PeopleSource, SourceError, open_source

@@ -14,7 +14,8 @@ import pytest
 import zenoh
 
 from common.msgs import (Estimate, FrameInfo, ImageAnnotations, MultiEstimate, ParticleCloud, RawImage, RunConfig, ScoreQuery,
-                         ScoreReply, ServiceStatus, Template, image_to_msg, pack)
+                         ScoreReply, ServiceStatus, Template, pack)
+from common.msgs.convert import image_to_msg
 from common.record.reader import read_recording
 from common.runner import track_frames
 from common.settings import profile_for

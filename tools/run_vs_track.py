@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _multi(rec, csv_path: str | None) -> int:
-    from common.multitarget_runner import MultiRun, msg_positions, multi_estimate_msg, track_frames
+    from common.msgs.convert import msg_positions, multi_estimate_msg
+    from common.multitarget_runner import MultiRun, track_frames
     from common.record.retrack import compare_multi
     from common.sources import open_source
 

@@ -226,7 +226,8 @@ def offline_retrack_multi(rec: Recording, run) -> dict:
     """Re-run a multi-target recording (``run``: its :class:`common.multitarget_runner.MultiRun`)
     from its recorded part-evidence replies (no detector, no pixels) and compare every estimate
     with the recorded one."""
-    from common.multitarget_runner import MultiTracker, multi_estimate_msg
+    from common.msgs.convert import multi_estimate_msg
+    from common.multitarget_runner import MultiTracker
     from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
 
     recorded = rec.decoded("track/multi_estimate")
