@@ -66,6 +66,16 @@ EXIT_DISK_FULL = 3
 """The recorder's exit status on a full disk (the launcher ends the run: a restart would not help)."""
 
 
+def on_disk(operation, what: str, path: str, full: list[str]) -> None:
+    """Run a file ``operation``; a full disk (ENOSPC) is noted in ``full``, any other error raised."""
+    try:
+        operation()
+    except OSError as exc:
+        if exc.errno != errno.ENOSPC:
+            raise
+        full.append(f"disk full (ENOSPC) {what} {path}")
+
+
 def image_index(data: bytes) -> int:
     """The frame index of a ``frame/image`` payload, its geometry checked (the pixels not copied); Invalid."""
     from common.msgs.image_wire import decode_frame
@@ -162,18 +172,15 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
 
         def write_sorted(items) -> None:
             """Into the file, in log-time order (:class:`common.record.order.LogTimeOrder`)."""
-            try:
+            def write_all() -> None:
                 for topic, data, log_time, now in items:
                     if not full:
                         sink.write(topic, data, log_time, now)
-            except OSError as exc:
-                if exc.errno != errno.ENOSPC:
-                    raise
-                full.append(f"disk full (ENOSPC) writing {cfg.out}")
+
+            on_disk(write_all, "writing", cfg.out, full)
 
         def write_one(sample) -> str:
-            key = str(sample.key_expr)
-            topic = key[len(prefix):] if key.startswith(prefix) else key
+            topic = bus.suffix(str(sample.key_expr))
             data = payload_bytes(sample)
             c.add("received")
             if full or not valid(topic, data, attachment_sender(sample)):
@@ -220,12 +227,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
                 if images:
                     segments.populate()  # the frames' shared memory, mapped with the first frame
             if status.tick():  # and the file flushed as often
-                try:
-                    sink.flush()
-                except OSError as exc:
-                    if exc.errno != errno.ENOSPC:
-                        raise
-                    full.append(f"disk full (ENOSPC) flushing {cfg.out}")
+                on_disk(sink.flush, "flushing", cfg.out, full)
         if not full:
             # a short grace period for messages in flight, then close the file properly
             deadline = time.monotonic() + 0.3
@@ -245,12 +247,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
         token.undeclare()
         sub.undeclare()
     if not full:
-        try:
-            sink.close()
-        except OSError as exc:
-            if exc.errno != errno.ENOSPC:
-                raise
-            full.append(f"disk full (ENOSPC) closing {cfg.out}")
+        on_disk(sink.close, "closing", cfg.out, full)
     if full:
         sink.abort()
         raise DiskFull(f"{full[0]}: stopped; the file keeps its first {sink.flushed_messages} messages "

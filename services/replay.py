@@ -17,7 +17,7 @@ from pathlib import Path
 
 from common.msgs import Estimate, FrameInfo, MultiEstimate
 from common.validation import FrameOrder, Invalid, check_frame_info, decode
-from common.record.reader import ReadReport, RecordingError, read_recording, stream_messages
+from common.record.reader import ReadReport, RecordingError, read_recording, stream_messages, warn_read
 from common.record.retrack import compare_estimates
 from services.bus import BusConfig, Inbox, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
 from services.launcher import client_args, free_ports, router_config
@@ -67,7 +67,7 @@ def republish(path: str, bus: BusConfig, speed: float | None = 1.0, warn=None, *
             passes += 1
             if sent == 0:
                 break  # nothing in the window: looping would only spin
-    _warn(path, report, warn)
+    warn_read(path, report, warn)
     if sent == 0 and (report.cut or report.skipped):
         raise RecordingError(f"{path}: not a readable MCAP file (no message could be read: "
                              f"{report.cut or report.skipped})")
@@ -85,18 +85,6 @@ def _read_stats(report: ReadReport) -> dict:
     if report.malformed:
         out["malformed"] = dict(report.malformed)
     return out
-
-
-def _warn(path: str, report: ReadReport, warn) -> None:
-    lines = []
-    if report.cut:
-        lines.append(f"warning: {path} is cut short ({report.cut}): read {report.messages} messages "
-                     "up to the last complete record")
-    if report.skipped:
-        lines.append(f"warning: {path}: records skipped: "
-                     + ", ".join(f"{k} {v}" for k, v in sorted(report.skipped.items())))
-    for line in lines:
-        (warn or (lambda m: print(m, file=sys.stderr)))(line)
 
 
 def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> dict:

@@ -3,7 +3,7 @@
     uv run python tools/estimate_hashes.py [--data ../shared/data] [--frames 60] [--json]
 
 Runs, each from the first true box with the default settings of its source:
-- ``track synthetic:3`` (in-process; the CSV),
+- ``track synthetic:3`` (in-process; the CSV), with each single-target filter (RBPF, SIR, ML),
 - ``track`` on a real sequence with the real-footage profile (``uavdt-S0310``, when --data has it),
 - ``track people:1`` with the multi-target filter (EPMCMC + ELPDA),
 - ``run synthetic:3`` (the multi-process pipeline; the recorded estimates), then
@@ -49,7 +49,10 @@ def _track(source: str, frames: int, tmp: Path, *extra: str) -> str:
 
 
 def _recorded(path: str) -> str:
-    from common.record.reader import read_recording
+    try:
+        from common.record.reader import read_recording
+    except ImportError:  # the layout before common/record/ (to fingerprint older commits)
+        from common.recording import read_recording
 
     rec = read_recording(path, topics=["track/estimate"])
     rows = [(e.frame_index, e.time_s, e.observed, e.x, e.y, e.theta_deg, e.p_visible, e.world_x, e.world_y, e.vx, e.vy,
@@ -68,6 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         out["track synthetic:3"] = _track("synthetic:3", args.frames, tmp)
+        for name in ("sir", "ml"):
+            out[f"track synthetic:3 --filter {name}"] = _track("synthetic:3", args.frames, tmp, "--filter", name)
         real = Path(args.data) / "uavdt-S0310"
         if real.is_dir():
             out["track uavdt-S0310 (real-footage profile)"] = _track(str(real), args.frames, tmp)

@@ -299,6 +299,13 @@ def read_recording(path: str, warn=None, topics: Iterable[str] | None = None,
             meta["run"] = run_metadata(msgs["run/config"][0][1])
         except Exception:  # noqa: BLE001 - a garbled config: no run metadata
             pass
+    warn_read(path, report, warn)
+    return Recording(path, meta, dict(msgs), dict(counts), report)
+
+
+def warn_read(path: str, report: ReadReport, warn=None) -> None:
+    """One line (to ``warn``, default standard error) for a file read up to a cut, and one for
+    records skipped."""
     lines = []
     if report.cut:
         lines.append(f"warning: {path} is cut short ({report.cut}): read {report.messages} messages "
@@ -313,4 +320,3 @@ def read_recording(path: str, warn=None, topics: Iterable[str] | None = None,
             print(message, file=sys.stderr)
         else:
             warn(message)
-    return Recording(path, meta, dict(msgs), dict(counts), report)

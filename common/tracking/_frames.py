@@ -39,3 +39,60 @@ class FrameClock:
             h = observation.homography
             self.homography = None if h is None else np.asarray(h, dtype=float)
         return self.homography
+
+
+class ParticleFilter:
+    """What the particle filters (RBPF, SIR) share: the cloud ``particles`` (N, 5) [x, vx, y, vy,
+    theta] with normalised log weights ``log_w``, the weight update's normalisation and the
+    resampling after the summary. Each filter keeps its own maths (prediction, likelihood) in
+    ``step`` and names its per-particle arrays in :meth:`_take`."""
+
+    config: object
+    particles: np.ndarray
+    log_w: np.ndarray
+
+    @classmethod
+    def from_image_box(cls, config, box_xyxy: tuple[float, float, float, float], first_observation,
+                       seed: int | np.random.SeedSequence | np.random.Generator = 0, **initial_kwargs):
+        """Start on the centre of an image box of the first frame (through its homography). The
+        prior's time defaults to None, so the first ``step`` (normally on that same frame) does
+        not predict."""
+        from .state import InitialState
+
+        initial = InitialState.from_image_box(box_xyxy, first_observation.homography, **initial_kwargs)
+        return cls(config, initial, seed)
+
+    @property
+    def n_particles(self) -> int:
+        return len(self.particles)
+
+    @property
+    def weights(self) -> np.ndarray:
+        from . import resampling
+
+        return resampling.weights_from_log(self.log_w)
+
+    def _normalise(self, log_w: np.ndarray, image_xy: np.ndarray, observation) -> float:
+        """Set the log weights to ``log_w`` (times the inside-the-image prior when the config
+        confines the target to the image), normalised; returns the log of their sum, the step's
+        log likelihood."""
+        from . import resampling
+        from .observation import inside_image_log_prior
+
+        if self.config.confine_to_image:
+            log_w = log_w + inside_image_log_prior(image_xy, observation.image_size)
+        log_lik = resampling.logsumexp(log_w)
+        self.log_w = log_w - log_lik
+        return log_lik
+
+    def _resample_after(self, state, w: np.ndarray) -> None:
+        """Resample (the config's scheme, this filter's generator) when the summary ``state`` says
+        so, after it was taken: weights equal again."""
+        if state.resampled:
+            idx = self._resample(w, self.rng)
+            self._take(idx)
+            self.log_w = np.full(self.n_particles, -np.log(self.n_particles))
+
+    def _take(self, idx: np.ndarray) -> None:
+        """Keep the particles ``idx`` (and each filter's per-particle arrays)."""
+        self.particles = self.particles[idx]

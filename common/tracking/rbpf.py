@@ -29,12 +29,12 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.special import logsumexp
 
 from . import resampling
-from ._frames import FrameClock, make_rng
+from ._frames import FrameClock, ParticleFilter, make_rng
 from .camera import world_to_image
 from .likelihood import BetaRatioLikelihood, LikelihoodModel
 from .motion import (NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain, jump_mixture_log_weights,
                      wrap_degrees)
-from .observation import N_ANGLES, FrameObservation, ObservationUnavailable, inside_image_log_prior, sanitise_scores
+from .observation import N_ANGLES, FrameObservation, ObservationUnavailable, sanitise_scores
 from .orientation_proposal import sample_orientation
 from .state import InitialState, TrackState, filter_state
 
@@ -106,7 +106,7 @@ class RBPFConfig(BaseModel):
     )
 
 
-class RaoBlackwellisedParticleFilter:
+class RaoBlackwellisedParticleFilter(ParticleFilter):
     """Pang 2010 RBPF. ``step(frame_time, observation)`` -> :class:`TrackState`.
 
     All randomness comes from ``self.rng``, made from ``seed`` (same inputs + seed -> bit-identical output).
@@ -124,22 +124,6 @@ class RaoBlackwellisedParticleFilter:
         self.rng = make_rng(seed)
         particles = initial.sample_particles(self.config.n_particles, self.rng)
         self._setup(particles, np.full(len(particles), initial.p_visible), None, initial.time)
-
-    @classmethod
-    def from_image_box(
-        cls,
-        config: RBPFConfig | None,
-        box_xyxy: tuple[float, float, float, float],
-        first_observation: FrameObservation,
-        seed: int | np.random.SeedSequence | np.random.Generator = 0,
-        **initial_kwargs,
-    ) -> "RaoBlackwellisedParticleFilter":
-        """Start on the centre of an image box of the first frame (through its homography).
-
-        The prior's time defaults to None, so the first ``step`` (normally on that same frame) does not predict.
-        """
-        initial = InitialState.from_image_box(box_xyxy, first_observation.homography, **initial_kwargs)
-        return cls(config, initial, seed)
 
     @classmethod
     def from_particles(
@@ -217,14 +201,6 @@ class RaoBlackwellisedParticleFilter:
         return keep
 
     @property
-    def n_particles(self) -> int:
-        return len(self.particles)
-
-    @property
-    def weights(self) -> np.ndarray:
-        return resampling.weights_from_log(self.log_w)
-
-    @property
     def p_visible_per_particle(self) -> np.ndarray:
         """pi_p(1) = p(V_t = 1 | S^N_{1:t,p}, Z_1:t)."""
         return np.exp(self.log_pv[:, 1])
@@ -276,11 +252,8 @@ class RaoBlackwellisedParticleFilter:
             scores, joint = scored  # joint: log l_p(v) + log pi^-_p(v)
             log_m = np.logaddexp(joint[:, 0], joint[:, 1])  # log m_p
             self.log_pv = joint - log_m[:, None]  # log pi_p(v)
-            log_w = self.log_w + log_m  # log w_{t-1} is normalised, so ...
-            if cfg.confine_to_image:
-                log_w = log_w + inside_image_log_prior(image_xy, observation.image_size)
-            log_lik = resampling.logsumexp(log_w)  # ... this is log sum_p w_{t-1,p} m_p
-            self.log_w = log_w - log_lik
+            # log w_{t-1} is normalised, so the log likelihood is log sum_p w_{t-1,p} m_p
+            log_lik = self._normalise(self.log_w + log_m, image_xy, observation)
         if self.n_particles > self._n:
             keep = self._keep_one_per_group()
             image_xy = image_xy[keep]
@@ -291,12 +264,12 @@ class RaoBlackwellisedParticleFilter:
         state = filter_state(frame_time, observation is not None, self.particles, image_xy, w,
                              self.p_visible_per_particle, log_lik, scores if scored is not None else None,
                              cfg.ess_threshold_fraction)
-        if state.resampled:
-            idx = self._resample(w, self.rng)
-            self.particles = self.particles[idx]
-            self.log_pv = self.log_pv[idx]
-            self.log_w = np.full(self.n_particles, -np.log(self.n_particles))
+        self._resample_after(state, w)
         return state
+
+    def _take(self, idx: np.ndarray) -> None:
+        self.particles = self.particles[idx]
+        self.log_pv = self.log_pv[idx]
 
     def _score(self, observation: FrameObservation, image_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One batched query: scores (N,) at the particles' (sampled) orientation and the joint

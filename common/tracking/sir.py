@@ -18,11 +18,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from . import resampling
-from ._frames import FrameClock, make_rng
+from ._frames import FrameClock, ParticleFilter, make_rng
 from .camera import world_to_image
 from .likelihood import ExponentialScoreLikelihood, LikelihoodModel
 from .motion import NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain
-from .observation import FrameObservation, ObservationUnavailable, inside_image_log_prior, sanitise_scores
+from .observation import FrameObservation, ObservationUnavailable, sanitise_scores
 from .state import InitialState, TrackState, filter_state
 
 
@@ -67,7 +67,7 @@ class SIRConfig(BaseModel):
     )
 
 
-class SIRParticleFilter:
+class SIRParticleFilter(ParticleFilter):
     """Nelson 2008 SIR filter with sampled visibility. ``step(frame_time, observation)`` -> :class:`TrackState`.
 
     All randomness comes from ``self.rng``, made from ``seed``. One ``score_at`` call per observed frame.
@@ -92,27 +92,6 @@ class SIRParticleFilter:
         self.log_w = np.full(n, -np.log(n))
         self.clock = FrameClock(initial.time)
         self._resample = resampling.get_scheme(self.config.resampling)
-
-    @classmethod
-    def from_image_box(
-        cls,
-        config: SIRConfig | None,
-        box_xyxy: tuple[float, float, float, float],
-        first_observation: FrameObservation,
-        seed: int | np.random.SeedSequence | np.random.Generator = 0,
-        **initial_kwargs,
-    ) -> "SIRParticleFilter":
-        """Start on the centre of an image box of the first frame (through its homography)."""
-        initial = InitialState.from_image_box(box_xyxy, first_observation.homography, **initial_kwargs)
-        return cls(config, initial, seed)
-
-    @property
-    def n_particles(self) -> int:
-        return len(self.particles)
-
-    @property
-    def weights(self) -> np.ndarray:
-        return resampling.weights_from_log(self.log_w)
 
     def predict(self, dt: float) -> None:
         """Draw order: 4N normals (X), N normals (theta), N uniforms (V)."""
@@ -140,22 +119,18 @@ class SIRParticleFilter:
         if scored is not None:
             scores, _valid = scored
             ll = cfg.likelihood.log_likelihood(scores)  # (N, 2), columns V = 0, 1
-            log_w = self.log_w + ll[np.arange(self.n_particles), self.visible]
-            if cfg.confine_to_image:
-                log_w = log_w + inside_image_log_prior(image_xy, observation.image_size)
-            log_lik = resampling.logsumexp(log_w)
-            self.log_w = log_w - log_lik
+            log_lik = self._normalise(self.log_w + ll[np.arange(self.n_particles), self.visible], image_xy, observation)
 
         w = self.weights
         state = filter_state(frame_time, observation is not None, self.particles, image_xy, w,
                              self.visible.astype(float), log_lik, scores if scored is not None else None,
                              cfg.ess_threshold_fraction)
-        if state.resampled:
-            idx = self._resample(w, self.rng)
-            self.particles = self.particles[idx]
-            self.visible = self.visible[idx]
-            self.log_w = np.full(self.n_particles, -np.log(self.n_particles))
+        self._resample_after(state, w)
         return state
+
+    def _take(self, idx: np.ndarray) -> None:
+        self.particles = self.particles[idx]
+        self.visible = self.visible[idx]
 
 
 SIR = SIRParticleFilter
