@@ -72,6 +72,29 @@ class ParticleFilter:
 
         return resampling.weights_from_log(self.log_w)
 
+    def _advance(self, frame_time: float, observation) -> tuple[float, np.ndarray]:
+        """Move to ``frame_time``: predict over the elapsed T (none on a first step), take the
+        observation's homography; returns T and the particles' image positions."""
+        from .camera import world_to_image
+
+        dt = self.clock.advance(frame_time)
+        if dt > 0:
+            self.predict(dt)
+        h = self.clock.see(observation)
+        return dt, world_to_image(h, self.particles[:, [0, 2]])
+
+    def _finish(self, frame_time: float, observed: bool, image_xy: np.ndarray, p_visible: np.ndarray,
+                log_lik: float, scores: np.ndarray | None):
+        """The step's summary (:func:`common.tracking.state.filter_state`, before resampling), then
+        the resampling it calls for."""
+        from .state import filter_state
+
+        w = self.weights
+        state = filter_state(frame_time, observed, self.particles, image_xy, w, p_visible, log_lik, scores,
+                             self.config.ess_threshold_fraction)
+        self._resample_after(state, w)
+        return state
+
     def _normalise(self, log_w: np.ndarray, image_xy: np.ndarray, observation) -> float:
         """Set the log weights to ``log_w`` (times the inside-the-image prior when the config
         confines the target to the image), normalised; returns the log of their sum, the step's

@@ -30,13 +30,12 @@ from scipy.special import logsumexp
 
 from . import resampling
 from ._frames import FrameClock, ParticleFilter, make_rng
-from .camera import world_to_image
 from .likelihood import BetaRatioLikelihood, LikelihoodModel
 from .motion import (NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain, jump_mixture_log_weights,
                      wrap_degrees)
 from .observation import N_ANGLES, FrameObservation, ObservationUnavailable, sanitise_scores
 from .orientation_proposal import sample_orientation
-from .state import InitialState, TrackState, filter_state
+from .state import InitialState, TrackState
 
 
 class RBPFConfig(BaseModel):
@@ -230,12 +229,8 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
 
     def step(self, frame_time: float, observation: FrameObservation | None) -> TrackState:
         cfg = self.config
-        dt = self.clock.advance(frame_time)
-        self._theta_sigma = 0.0
-        if dt > 0:
-            self.predict(dt)
-        h = self.clock.see(observation)
-        image_xy = world_to_image(h, self.particles[:, [0, 2]])
+        self._theta_sigma = 0.0  # predict sets it
+        dt, image_xy = self._advance(frame_time, observation)
 
         log_lik = 0.0
         scored = None
@@ -260,12 +255,8 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
             if scored is not None:
                 scores = scores[keep]
 
-        w = self.weights
-        state = filter_state(frame_time, observation is not None, self.particles, image_xy, w,
-                             self.p_visible_per_particle, log_lik, scores if scored is not None else None,
-                             cfg.ess_threshold_fraction)
-        self._resample_after(state, w)
-        return state
+        return self._finish(frame_time, observation is not None, image_xy, self.p_visible_per_particle, log_lik,
+                            scores if scored is not None else None)
 
     def _take(self, idx: np.ndarray) -> None:
         self.particles = self.particles[idx]

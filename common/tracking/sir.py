@@ -19,11 +19,10 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from . import resampling
 from ._frames import FrameClock, ParticleFilter, make_rng
-from .camera import world_to_image
 from .likelihood import ExponentialScoreLikelihood, LikelihoodModel
 from .motion import NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain
 from .observation import FrameObservation, ObservationUnavailable, sanitise_scores
-from .state import InitialState, TrackState, filter_state
+from .state import InitialState, TrackState
 
 
 class SIRConfig(BaseModel):
@@ -102,11 +101,7 @@ class SIRParticleFilter(ParticleFilter):
 
     def step(self, frame_time: float, observation: FrameObservation | None) -> TrackState:
         cfg = self.config
-        dt = self.clock.advance(frame_time)
-        if dt > 0:
-            self.predict(dt)
-        h = self.clock.see(observation)
-        image_xy = world_to_image(h, self.particles[:, [0, 2]])
+        _dt, image_xy = self._advance(frame_time, observation)
 
         log_lik = 0.0
         scored = None
@@ -121,12 +116,8 @@ class SIRParticleFilter(ParticleFilter):
             ll = cfg.likelihood.log_likelihood(scores)  # (N, 2), columns V = 0, 1
             log_lik = self._normalise(self.log_w + ll[np.arange(self.n_particles), self.visible], image_xy, observation)
 
-        w = self.weights
-        state = filter_state(frame_time, observation is not None, self.particles, image_xy, w,
-                             self.visible.astype(float), log_lik, scores if scored is not None else None,
-                             cfg.ess_threshold_fraction)
-        self._resample_after(state, w)
-        return state
+        return self._finish(frame_time, observation is not None, image_xy, self.visible.astype(float), log_lik,
+                            scores if scored is not None else None)
 
     def _take(self, idx: np.ndarray) -> None:
         self.particles = self.particles[idx]
