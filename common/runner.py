@@ -82,7 +82,7 @@ def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, 
     length = target_length_world(init_box, homography)
     initial = InitialState.from_image_point((x + w / 2, y + h / 2), homography, time=t0,
                                             pos_std=settings.init_pos_std, vel_std=initial_vel_std(settings, length))
-    upd = {} if settings.particles is None else {"n_particles": settings.particles}
+    upd = {}
     if settings.motion_noise_lengths is not None:
         q = (settings.motion_noise_lengths * length) ** 2
         upd["motion"] = NearConstantVelocity(q_x=q, q_y=q)

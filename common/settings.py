@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.stabilise import StabiliserConfig
 from common.tracking import RBPFConfig, SIRConfig, WindowedMLConfig
@@ -115,7 +115,6 @@ class TrackerSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     filter: FilterName = Field("rbpf", description="rbpf (Pang), sir (Nelson) or ml (windowed search).")
-    particles: int | None = Field(None, ge=1, description="Particles (rbpf, sir); None: the filter's default.")
     seed: int = Field(0, ge=0, description="Seed of the filter's random generator.")
     rbpf: RBPFConfig = Field(default_factory=RBPFConfig)
     sir: SIRConfig = Field(default_factory=SIRConfig)
@@ -151,6 +150,22 @@ class TrackerSettings(BaseModel):
     init_pos_std: float = Field(0.0, ge=0, description="Initial spread of the particles' position (world units).")
     init_vel_std: float = Field(10.0, ge=0, description="Initial spread of the particles' velocity (world units "
                                 "per second): the first box says where the target is, not how it moves.")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_particle_knob(cls, data):
+        """The particle count is the filter's own (``rbpf.n_particles``, ``sir.n_particles``). Settings
+        written before (recordings' run metadata) had a top-level ``particles`` as well, which
+        replaced both: read as that."""
+        if isinstance(data, dict) and "particles" in data:
+            data = dict(data)
+            n = data.pop("particles")
+            if n is not None:
+                for name in ("rbpf", "sir"):
+                    sub = data.get(name, {})
+                    sub = sub.model_dump() if isinstance(sub, BaseModel) else dict(sub)
+                    data[name] = {**sub, "n_particles": n}
+        return data
 
 
 SYNTHETIC_BETA = {"a1": 5.69, "b1": 2.81, "a0": 0.25, "b0": 8.08}
@@ -220,14 +235,16 @@ def profile_for(source, filter: FilterName = "rbpf", **kw) -> TrackerSettings:
     return st.model_copy(update={"rbpf": st.rbpf.model_copy(update={"likelihood": BetaRatioLikelihood(**SYNTHETIC_BETA)})})
 
 
-def rate_adjusted_settings(fps: float, filter: FilterName = "rbpf", q_motion: float = 4.0, **kw) -> TrackerSettings:
+def rate_adjusted_settings(fps: float, filter: FilterName = "rbpf", q_motion: float = 4.0, particles: int | None = None,
+                           **kw) -> TrackerSettings:
     """Pang's Table 1 model converted from its 3 fps sequence to a source at ``fps``.
 
     Table 1 gives per-step quantities at T = 1/3 s: orientation variance 16 deg^2 per step
     (48 deg^2 per second; raised to 150 deg^2/s for the sharper turns of the synthetic car, the
     per-frame variance scaling with the frame interval) and
     visibility switching probabilities 0.1 per step (here the per-frame probability with the
-    same rate per second, 1 - 0.9^(3/fps)). The motion variance is refitted to the scene, as
+    same rate per second, 1 - 0.9^(3/fps)). ``particles`` sets both particle filters' count (None:
+    Pang's 200 for the RBPF, Nelson's 300 for the SIR). The motion variance is refitted to the scene, as
     Pang's was ("empirically chosen and fitted to the video data"): the synthetic car drives
     smooth curves at about 10 m/s, so ``q = 4 m^2 s^-3`` (625 would let the cloud spread over
     tens of metres in one second of occlusion).
@@ -240,8 +257,9 @@ def rate_adjusted_settings(fps: float, filter: FilterName = "rbpf", q_motion: fl
     # (48 deg^2/s) lags such turns by tens of degrees.
     orientation = OrientationRandomWalk(q_theta=150.0, per="second")
     visibility = VisibilityMarkovChain(p_nv=p, p_v=p)
-    rbpf = RBPFConfig(motion=motion, orientation=orientation, visibility=visibility)
-    sir = SIRConfig(motion=motion, orientation=orientation)
+    count = {} if particles is None else {"n_particles": particles}  # None: each filter's paper's
+    rbpf = RBPFConfig(motion=motion, orientation=orientation, visibility=visibility, **count)
+    sir = SIRConfig(motion=motion, orientation=orientation, **count)
     return TrackerSettings(filter=filter, rbpf=rbpf, sir=sir, **kw)
 
 

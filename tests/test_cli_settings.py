@@ -37,3 +37,22 @@ def test_run_takes_the_same_overrides(capsys):
     """run validates --set as track does (before starting any process)."""
     assert main(["run", "--source", "synthetic:1", "--frames", "2", "--set", "scale.mode=sideways"]) == 2
     assert "scale.mode: Input should be" in capsys.readouterr().err
+
+
+def test_one_particle_knob_and_older_settings_read_the_same():
+    """The particle count is the filter's own; ``--particles`` and the profile set both particle
+    filters'. Settings recorded before had a top-level ``particles`` that replaced the filters'
+    counts: read back, it is the same count (and a bad one is still refused)."""
+    import pydantic
+
+    from common.settings import TrackerSettings, profile_for
+
+    src = open_source("synthetic:0", n_frames=2)
+    st = profile_for(src, particles=123)
+    assert st.rbpf.n_particles == st.sir.n_particles == 123 and "particles" not in st.model_dump()
+    assert profile_for(src).rbpf.n_particles == 200 and profile_for(src).sir.n_particles == 300  # the papers'
+    old = TrackerSettings.model_validate_json('{"filter": "sir", "particles": 400, "sir": {"n_particles": 300}}')
+    assert old.sir.n_particles == old.rbpf.n_particles == 400
+    assert TrackerSettings.model_validate_json('{"particles": null}') == TrackerSettings()
+    with pytest.raises(pydantic.ValidationError):
+        TrackerSettings.model_validate_json('{"particles": 0}')

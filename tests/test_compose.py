@@ -314,7 +314,7 @@ def test_run_file_overrides_reach_the_settings(tmp_path):
     assert main(["config", "run", "--source", "synthetic:0", "--particles", "123", "--set", "scale.mode=search",
                  "--out", str(out)]) == 0
     spec, st = load_run("test", str(out))
-    assert st.particles == 123 and st.scale.mode == "search" and spec.settings == {"scale": {"mode": "search"}}
+    assert st.rbpf.n_particles == st.sir.n_particles == 123 and st.scale.mode == "search" and spec.settings == {"scale": {"mode": "search"}}
     out.write_text(out.read_text().replace('mode = "search"', 'mode = "sideways"'))
     with pytest.raises(SystemExit) as exc:
         load_run("test", str(out))
