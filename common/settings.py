@@ -208,31 +208,49 @@ REAL_INIT_VEL_LENGTHS = round(10.0 / CAR_LENGTH_M, 1)
 10 m/s (2.2 lengths/s) at 1 sigma; the first box says where the target is, not how it moves."""
 
 
-def profile_for(source, filter: FilterName = "rbpf", **kw) -> TrackerSettings:
-    """Default settings for a source: the synthetic scene's calibrated profile, or Pang's model
-    converted to the source's frame rate, in stabilised pixels, for real footage."""
-    from common.tracking import BetaRatioLikelihood
+PRESETS: dict[str, dict] = {
+    # The synthetic scene: Pang's model at the scene's frame rate, with this detector's own
+    # likelihood (SYNTHETIC_BETA) instead of Pang's fit to his detector.
+    "synthetic": {"rbpf": {"likelihood": {"kind": "beta_ratio", **SYNTHETIC_BETA}}},
+    # Real footage: the same likelihood; the motion noise and the initial velocity spread in
+    # target lengths (the world is then stabilised pixels, or target lengths; see
+    # REAL_MOTION_NOISE_LENGTHS); the per-frame mechanisms (see the fields): template adaptation,
+    # matching at the target's scale (upsampling a small target, tracking its size), turning the
+    # particles with the camera, re-acquisition; stabilisation is on by default ("auto") for any
+    # source without a homography.
+    "real": {
+        "rbpf": {"likelihood": {"kind": "beta_ratio", **SYNTHETIC_BETA}, "n_particles": REAL_PARTICLES},
+        "sir": {"n_particles": REAL_PARTICLES},
+        "adaptation": REAL_ADAPTATION.model_dump(exclude_defaults=True),
+        "scale": ScaleSettings().model_dump(),
+        "compensate_camera_rotation": True,
+        "motion_noise_lengths": REAL_MOTION_NOISE_LENGTHS,
+        "init_vel_lengths": REAL_INIT_VEL_LENGTHS,
+        "reacquisition": {"enabled": True},
+    },
+}
+"""The named profiles: tracker settings (nested, as a run file's ``[settings]``) laid over Pang's
+model converted to the source's frame rate (:func:`rate_adjusted_settings`). ``profile_for``
+takes ``synthetic`` for the built-in scenes and ``real`` for everything else."""
 
-    if getattr(source, "name", "").startswith("synthetic"):
-        st = rate_adjusted_settings(source.fps, filter=filter, **kw)
-        return st.model_copy(update={"rbpf": st.rbpf.model_copy(update={"likelihood": BetaRatioLikelihood(**SYNTHETIC_BETA)})})
-    # Real footage: the motion noise and the initial velocity spread in target lengths (the world
-    # is then stabilised pixels, or target lengths; see REAL_MOTION_NOISE_LENGTHS).
-    # The likelihood is this detector's own calibration (the synthetic scene's, a seed kept out
-    # of every evaluation), not Pang's fit to his detector.
-    # The per-frame mechanisms (see the fields): template adaptation, matching at the target's
-    # scale (upsampling a small target, tracking its size), turning the particles with the camera;
-    # stabilisation is on by default ("auto") for any source without a homography.
-    kw.setdefault("adaptation", REAL_ADAPTATION)
-    kw.setdefault("scale", ScaleSettings())
-    kw.setdefault("compensate_camera_rotation", True)
-    kw.setdefault("motion_noise_lengths", REAL_MOTION_NOISE_LENGTHS)
-    kw.setdefault("init_vel_lengths", REAL_INIT_VEL_LENGTHS)
-    kw.setdefault("reacquisition", ReacquisitionSettings(enabled=True))
-    if kw.get("particles") is None:
-        kw["particles"] = REAL_PARTICLES
-    st = rate_adjusted_settings(source.fps, filter=filter, **kw)
-    return st.model_copy(update={"rbpf": st.rbpf.model_copy(update={"likelihood": BetaRatioLikelihood(**SYNTHETIC_BETA)})})
+
+def preset_for(source) -> str:
+    """The profile a source gets: ``synthetic`` for the built-in scene, ``real`` for the rest."""
+    return "synthetic" if getattr(source, "name", "").startswith("synthetic") else "real"
+
+
+def profile_for(source, filter: FilterName = "rbpf", seed: int = 0, particles: int | None = None,
+                preset: str | None = None) -> TrackerSettings:
+    """The settings for ``source`` (its frame rate and kind): the named ``preset`` (default
+    :func:`preset_for`) over Pang's model at the source's frame rate; ``particles`` replaces the
+    preset's count."""
+    name = preset or preset_for(source)
+    if name not in PRESETS:
+        raise ValueError(f"no profile {name!r}; one of {', '.join(PRESETS)}")
+    st = with_overrides(rate_adjusted_settings(source.fps, filter=filter, seed=seed), PRESETS[name])
+    if particles is not None:
+        st = with_overrides(st, {"rbpf": {"n_particles": particles}, "sir": {"n_particles": particles}})
+    return st
 
 
 def rate_adjusted_settings(fps: float, filter: FilterName = "rbpf", q_motion: float = 4.0, particles: int | None = None,
@@ -313,6 +331,8 @@ class RunSpec(BaseModel):
     filter: FilterName = Field("rbpf", description="rbpf (Pang), sir (Nelson) or ml (windowed search)")
     seed: int = Field(0, ge=0, description="seed of the filter's random generator")
     particles: int | None = Field(None, ge=1, description="particles; None: the profile's")
+    profile: str | None = Field(None, description="the settings profile (common.settings.PRESETS: synthetic or "
+                                "real); None: synthetic for the built-in scenes, real for the rest")
     settings: dict = Field(default_factory=dict, description="tracker settings (common.settings.TrackerSettings, "
                            "nested tables) that replace the profile's")
 
@@ -331,5 +351,5 @@ class RunSpec(BaseModel):
                 source = open_source(self.source, n_frames=self.frames)
             except SourceError as exc:
                 raise ValueError(str(exc)) from None
-        st = profile_for(source, filter=self.filter, seed=self.seed, particles=self.particles)
+        st = profile_for(source, filter=self.filter, seed=self.seed, particles=self.particles, preset=self.profile)
         return with_overrides(st, self.settings) if self.settings else st

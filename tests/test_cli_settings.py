@@ -56,3 +56,25 @@ def test_one_particle_knob_and_older_settings_read_the_same():
     assert TrackerSettings.model_validate_json('{"particles": null}') == TrackerSettings()
     with pytest.raises(pydantic.ValidationError):
         TrackerSettings.model_validate_json('{"particles": 0}')
+
+
+def test_the_profiles_are_named_presets(tmp_path):
+    """The real-footage profile is data (common.settings.PRESETS), chosen by the source or by name
+    (``--profile``); a preset is the same settings as the overrides it lists over Pang's model at
+    the frame rate."""
+    from common.settings import PRESETS, profile_for, rate_adjusted_settings, with_overrides
+
+    src = open_source("synthetic:0", n_frames=2)
+    real = profile_for(src, preset="real")
+    assert real.adaptation.enabled and real.reacquisition.enabled and real.rbpf.n_particles == 400
+    assert not profile_for(src).adaptation.enabled  # the built-in scene gets "synthetic"
+    assert real == with_overrides(rate_adjusted_settings(src.fps), PRESETS["real"])
+    with pytest.raises(ValueError, match="no profile"):
+        profile_for(src, preset="nope")
+    out = tmp_path / "real.csv"
+    assert main(["track", "synthetic:0", "--frames", "3", "--profile", "real", "--no-progress", "--out", str(out)]) == 0
+    synth = tmp_path / "synth.csv"
+    assert main(["track", "synthetic:0", "--frames", "3", "--no-progress", "--out", str(synth)]) == 0
+    assert out.read_text() != synth.read_text()  # the profile reached the tracker
+    with pytest.raises(SystemExit):
+        main(["track", "synthetic:0", "--profile", "nope"])

@@ -64,6 +64,7 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
     else:
         p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="tracking filter")
     p.add_argument("--particles", type=positive_int, metavar="N", help="number of particles (rbpf, sir)")
+    add_profile_argument(p)
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the filter's random generator")
     p.add_argument("--frames", type=positive_int, metavar="N", help="only the first N frames")
     p.add_argument("--ml-threshold", type=float, metavar="T", help="windowed ML detection threshold (default 0.6)")
@@ -117,13 +118,21 @@ def open_checked(args):
     return source, tuple(float(v) for v in init)
 
 
+def add_profile_argument(p) -> None:
+    from common.settings import PRESETS
+
+    p.add_argument("--profile", choices=sorted(PRESETS), help="the settings profile (default: synthetic for the "
+                   "built-in scenes, real for the rest; common.settings.PRESETS)")
+
+
 def settings_for(args, source, filter_name: str):
     from services.commands.errors import UsageError
     from common.settings import profile_for
 
     if args.particles is not None and args.particles < 1:
         raise UsageError("--particles must be at least 1")
-    st = profile_for(source, filter=filter_name, seed=args.seed, particles=args.particles)
+    st = profile_for(source, filter=filter_name, seed=args.seed, particles=args.particles,
+                     preset=getattr(args, "profile", None))
     if getattr(args, "ml_threshold", None) is not None:
         st = st.model_copy(update={"ml": st.ml.model_copy(update={"threshold": args.ml_threshold})})
     if getattr(args, "overrides", None):

@@ -19,7 +19,7 @@ HELP = "write settings files: the run file compose tracks with, a service's keys
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from services.commands.common_args import box_arg
+    from services.commands.common_args import add_profile_argument, box_arg
 
     sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
     r = sub.add_parser("run", help="the run file (deploy/run.toml): source, first box, filter, settings")
@@ -31,6 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--filter", choices=["rbpf", "sir", "ml"], default="rbpf")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--particles", type=int, help="particles (default: the profile's)")
+    add_profile_argument(r)
     r.add_argument("--frames", type=int, help="only the first N frames")
     r.add_argument("--pace", choices=["consumer", "realtime", "max"], default="consumer")
     r.add_argument("--image-format", dest="image_format", default="auto")
@@ -88,7 +89,7 @@ def _run_spec(args: argparse.Namespace):
     try:
         spec = RunSpec(source=args.as_path or args.source, init_box=tuple(float(v) for v in box), fps=source.fps,
                        frames=args.frames, pace=args.pace, image_format=args.image_format, filter=args.filter,
-                       seed=args.seed, particles=args.particles)
+                       seed=args.seed, particles=args.particles, profile=args.profile)
         if args.overrides:  # checked against the profile, kept as overrides
             base = spec.tracker_settings()
             changed = apply_overrides(base, args.overrides)
@@ -110,7 +111,8 @@ def _command(args: argparse.Namespace) -> str:
     if args.init is not None:
         words += ["--init", ",".join(f"{v:g}" for v in args.init)]
     for flag, key, default in (("--as", "as_path", None), ("--filter", "filter", "rbpf"), ("--seed", "seed", 0),
-                               ("--particles", "particles", None), ("--frames", "frames", None),
+                               ("--particles", "particles", None), ("--profile", "profile", None),
+                               ("--frames", "frames", None),
                                ("--pace", "pace", "consumer"), ("--image-format", "image_format", "auto")):
         if getattr(args, key) != default:
             words += [flag, str(getattr(args, key))]

@@ -26,13 +26,14 @@ HELP = "run the multi-process pipeline (ingest, detector, tracker, recorder, vie
 
 def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     if not demo:
-        from services.commands.common_args import add_multi_arguments
+        from services.commands.common_args import add_multi_arguments, add_profile_argument
 
         p.add_argument("--source", required=True, metavar="SRC",
                        help="video file, UAV123-format folder, camera:N, synthetic[:SEED] or people[:SEED] "
                        "(the synthetic people scene, multi-target filters)")
         add_multi_arguments(p)
         p.add_argument("--particles", type=positive_int, metavar="N", help="particles (rbpf, sir)")
+        add_profile_argument(p)
         p.add_argument("--seed", type=seed_int, default=0, help="seed of the filter's generator")
         p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                        help="override a tracker setting by its dotted name (repeatable), as on track")
@@ -82,7 +83,8 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
         raise UsageError(str(exc)) from None
     if particles is not None and particles < 1:
         raise UsageError("--particles must be at least 1")
-    settings = profile_for(source, filter=filter_name, seed=seed, particles=particles)
+    settings = profile_for(source, filter=filter_name, seed=seed, particles=particles,
+                           preset=getattr(args, "profile", None))
     if getattr(args, "overrides", None):
         settings = apply_overrides(settings, args.overrides)
     return _launch(args, source_spec, init, settings, None)
