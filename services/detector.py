@@ -194,9 +194,9 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m services.detector", description=__doc__)
     options.add_bus_arguments(p)
-    p.add_argument("--max-frames", dest="max_frames", type=int, help="frames held")
+    keys = options.add_model_flags(p, DetectorSettings)
     args = p.parse_args(argv)
-    bus, settings = options.load("detector", args, DetectorSettings, ["max_frames"])
+    bus, settings = options.load("detector", args, DetectorSettings, keys)
     from services.bus import setup_logging
 
     setup_logging("detector", args.log_level)

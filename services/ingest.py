@@ -282,14 +282,10 @@ def run_keys(spec, settings, path: str) -> dict:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m services.ingest", description=__doc__)
     options.add_bus_arguments(p)
-    p.add_argument("--source", help="video file, UAV123 folder, camera:N or synthetic[:SEED]")
-    p.add_argument("--frames", type=int, help="only the first N frames")
-    p.add_argument("--pace", choices=["consumer", "realtime", "max"])
-    p.add_argument("--wait-for", dest="wait_for", type=lambda t: [s for s in t.split(",") if s],
-                   help="comma-separated services to wait for")
+    keys = options.add_model_flags(p, IngestSettings)
     options.add_run_argument(p)
     args = p.parse_args(argv)
-    bus, cfg = options.load("ingest", args, IngestSettings, ["source", "frames", "pace", "wait_for"], run=run_keys)
+    bus, cfg = options.load("ingest", args, IngestSettings, keys, run=run_keys)
     from services.bus import setup_logging
 
     setup_logging("ingest", args.log_level)

@@ -50,6 +50,53 @@ def lower_priority(nice: int) -> None:
         os.nice(nice)
 
 
+def _flag_type(annotation):
+    """argparse keywords for a settings field's type; None for a field that only a config file
+    sets (nested models, tables)."""
+    import types
+    import typing
+
+    args = [a for a in typing.get_args(annotation) if a is not type(None)]
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        if len(args) != 1:
+            return None
+        return _flag_type(args[0])
+    origin = typing.get_origin(annotation)
+    if origin is typing.Literal:
+        return {"choices": list(args)}
+    if origin is tuple and args and all(a is float for a in args if a is not Ellipsis):
+        n = None if Ellipsis in args else len(args)
+
+        def floats(text: str):
+            values = tuple(float(v) for v in text.split(","))
+            if n is not None and len(values) != n:
+                raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers")
+            return values
+
+        return {"type": floats, "metavar": ",".join(["N"] * (n or 2))}
+    if origin is list and args == [str]:
+        return {"type": lambda t: [v for v in t.split(",") if v], "metavar": "A,B"}
+    if annotation is bool:
+        return {"action": argparse.BooleanOptionalAction}
+    if annotation in (int, float, str):
+        return {"type": annotation}
+    return None
+
+
+def add_model_flags(p: argparse.ArgumentParser, model: type[BaseModel], skip: tuple[str, ...] = ()) -> list[str]:
+    """A flag for every field of ``model`` that a command line can hold (``--max-lag-frames N`` for
+    ``max_lag_frames``; booleans ``--x / --no-x``), with the field's description as its help; the
+    nested ones (tables) only in ``--config``. Returns the keys, for :func:`load`."""
+    keys = []
+    for name, field in model.model_fields.items():
+        kw = None if name in skip else _flag_type(field.annotation)
+        if kw is None:
+            continue
+        p.add_argument("--" + name.replace("_", "-"), dest=name, default=None, help=field.description, **kw)
+        keys.append(name)
+    return keys
+
+
 def add_run_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", metavar="FILE.toml", help="what the run tracks (common.settings.RunSpec: source, "
                    "init_box, filter, settings; e.g. deploy/run.toml, written by `polartrack config run`)")

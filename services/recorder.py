@@ -259,12 +259,9 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m services.recorder", description=__doc__)
     options.add_bus_arguments(p)
-    p.add_argument("--out", help="MCAP file to write")
-    p.add_argument("--compression", choices=["lz4", "zstd", "none"], help="chunk compression")
-    p.add_argument("--max-size-mb", dest="max_size_mb", type=float, help="split into files of about this many MB")
-    p.add_argument("--max-duration-s", dest="max_duration_s", type=float, help="split every this many seconds")
+    keys = options.add_model_flags(p, RecorderSettings)
     args = p.parse_args(argv)
-    bus, cfg = options.load("recorder", args, RecorderSettings, ["out", "compression", "max_size_mb", "max_duration_s"])
+    bus, cfg = options.load("recorder", args, RecorderSettings, keys)
     from services.bus import setup_logging
 
     setup_logging("recorder", args.log_level)

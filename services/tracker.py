@@ -306,16 +306,10 @@ def run_keys(spec, settings, path: str) -> dict:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m services.tracker", description=__doc__)
     options.add_bus_arguments(p)
-    p.add_argument("--init", dest="init_box", type=lambda t: tuple(float(v) for v in t.split(",")),
-                   metavar="X,Y,W,H", help="target box in the first frame")
-    p.add_argument("--client", help="client name in queries")
-    p.add_argument("--skip-stale", dest="skip_stale", action="store_const", const=True, help="live source")
-    p.add_argument("--max-lag-frames", dest="max_lag_frames", type=int, metavar="N",
-                   help="live source: frames tracked in order while at most N newer ones wait")
+    keys = options.add_model_flags(p, TrackerServiceSettings)
     options.add_run_argument(p)
     args = p.parse_args(argv)
-    bus, cfg = options.load("tracker", args, TrackerServiceSettings, ["init_box", "client", "skip_stale", "max_lag_frames"],
-                            run=run_keys)
+    bus, cfg = options.load("tracker", args, TrackerServiceSettings, keys, run=run_keys)
     from services.bus import setup_logging
 
     setup_logging("tracker", args.log_level)

@@ -187,21 +187,9 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m services.viewer", description=__doc__)
     options.add_bus_arguments(p)
-    p.add_argument("--out", metavar="FILE.rrd", help="Rerun recording to write")
-    p.add_argument("--spawn", action="store_true", default=None, help="also open a live Rerun viewer")
-    p.add_argument("--rerun-connect", dest="rerun_connect", metavar="URL",
-                   help="also stream to a Rerun viewer or server at this gRPC URL")
-    p.add_argument("--rerun-serve-port", dest="rerun_serve_port", type=int, metavar="PORT",
-                   help="also serve the run to Rerun viewers on loopback at PORT")
-    p.add_argument("--jpeg-quality", type=int, metavar="Q", help="JPEG quality of the logged frames (1-100)")
-    p.add_argument("--track-length", type=int, metavar="K", help="estimates kept in the drawn track")
-    p.add_argument("--quiet-s", type=float, metavar="S", help="after end of stream, stop after S s without messages")
-    p.add_argument("--max-image-hz", type=float, metavar="HZ", help="frame images logged per second at most (0: all)")
+    keys = options.add_model_flags(p, ViewerSettings)
     args = p.parse_args(argv)
-    bus, cfg = options.load("viewer", args, ViewerSettings,
-                            ["out", "spawn", "rerun_connect", "rerun_serve_port", "jpeg_quality", "track_length", "quiet_s",
-                             "max_image_hz"],
-                            nice_later=True)
+    bus, cfg = options.load("viewer", args, ViewerSettings, keys, nice_later=True)
     try:
         bus.zenoh_config()
     except zenoh.ZError as exc:
