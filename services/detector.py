@@ -13,7 +13,6 @@ queries are invisible to subscribers). Run: ``python -m services.detector --help
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 from collections import OrderedDict
@@ -192,14 +191,7 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m services.detector", description=__doc__)
-    options.add_bus_arguments(p)
-    keys = options.add_model_flags(p, DetectorSettings)
-    args = p.parse_args(argv)
-    bus, settings = options.load("detector", args, DetectorSettings, keys)
-    from services.bus import setup_logging
-
-    setup_logging("detector", args.log_level)
+    bus, settings, _ = options.start("detector", __doc__, DetectorSettings, argv)
     serve(bus, settings, Stopper())
     return 0
 

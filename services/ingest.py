@@ -10,7 +10,6 @@ Run: ``python -m services.ingest --help``.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import signal
 import threading
@@ -280,15 +279,7 @@ def run_keys(spec, settings, path: str) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m services.ingest", description=__doc__)
-    options.add_bus_arguments(p)
-    keys = options.add_model_flags(p, IngestSettings)
-    options.add_run_argument(p)
-    args = p.parse_args(argv)
-    bus, cfg = options.load("ingest", args, IngestSettings, keys, run=run_keys)
-    from services.bus import setup_logging
-
-    setup_logging("ingest", args.log_level)
+    bus, cfg, _ = options.start("ingest", __doc__, IngestSettings, argv, run=run_keys)
     try:
         serve(bus, cfg, Stopper())
     except SourceError as exc:

@@ -97,6 +97,24 @@ def add_model_flags(p: argparse.ArgumentParser, model: type[BaseModel], skip: tu
     return keys
 
 
+def start(service: str, doc: str | None, model: type[M], argv: list[str] | None, run=None,
+          nice_later: bool = False) -> tuple[BusConfig, M, argparse.Namespace]:
+    """Every service's start: its flags (the bus's, one a settings field, ``--run`` when the
+    service reads the run file through ``run``), the settings validated (:func:`load`), logging
+    set up. Returns the bus, the settings and the parsed flags."""
+    p = argparse.ArgumentParser(prog=f"python -m services.{service}", description=doc)
+    add_bus_arguments(p)
+    keys = add_model_flags(p, model)
+    if run is not None:
+        add_run_argument(p)
+    args = p.parse_args(argv)
+    bus, cfg = load(service, args, model, keys, nice_later=nice_later, run=run)
+    from services.bus import setup_logging
+
+    setup_logging(service, args.log_level)
+    return bus, cfg, args
+
+
 def add_run_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", metavar="FILE.toml", help="what the run tracks (common.settings.RunSpec: source, "
                    "init_box, filter, settings; e.g. deploy/run.toml, written by `polartrack config run`)")

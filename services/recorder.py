@@ -13,7 +13,6 @@ Run: ``python -m services.recorder --help``.
 
 from __future__ import annotations
 
-import argparse
 import errno
 import logging
 import sys
@@ -257,14 +256,7 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m services.recorder", description=__doc__)
-    options.add_bus_arguments(p)
-    keys = options.add_model_flags(p, RecorderSettings)
-    args = p.parse_args(argv)
-    bus, cfg = options.load("recorder", args, RecorderSettings, keys)
-    from services.bus import setup_logging
-
-    setup_logging("recorder", args.log_level)
+    bus, cfg, _ = options.start("recorder", __doc__, RecorderSettings, argv)
     try:
         serve(bus, cfg, Stopper())
     except DiskFull as exc:

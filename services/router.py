@@ -8,7 +8,6 @@ Run: ``python -m services.router --mode router --listen tcp/127.0.0.1:PORT [--sh
 
 from __future__ import annotations
 
-import argparse
 import logging
 
 from pydantic import BaseModel, ConfigDict
@@ -35,13 +34,7 @@ def serve(bus: BusConfig, stopper: Stopper) -> Counters:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m services.router", description=__doc__)
-    options.add_bus_arguments(p)
-    args = p.parse_args(argv)
-    bus, _ = options.load("router", args, RouterSettings, [])
-    from services.bus import setup_logging
-
-    setup_logging("router", args.log_level)
+    bus, _, _ = options.start("router", __doc__, RouterSettings, argv)
     serve(bus, Stopper())
     return 0
 

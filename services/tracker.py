@@ -25,7 +25,6 @@ counted (:class:`services.frame_infos.InfoQueue`). Run: ``python -m services.tra
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import logging
 import time
@@ -304,15 +303,7 @@ def run_keys(spec, settings, path: str) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m services.tracker", description=__doc__)
-    options.add_bus_arguments(p)
-    keys = options.add_model_flags(p, TrackerServiceSettings)
-    options.add_run_argument(p)
-    args = p.parse_args(argv)
-    bus, cfg = options.load("tracker", args, TrackerServiceSettings, keys, run=run_keys)
-    from services.bus import setup_logging
-
-    setup_logging("tracker", args.log_level)
+    bus, cfg, _ = options.start("tracker", __doc__, TrackerServiceSettings, argv, run=run_keys)
     serve(bus, cfg, Stopper())
     return 0
 

@@ -13,7 +13,6 @@ Run: ``python -m services.viewer --help``.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 
@@ -185,18 +184,11 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m services.viewer", description=__doc__)
-    options.add_bus_arguments(p)
-    keys = options.add_model_flags(p, ViewerSettings)
-    args = p.parse_args(argv)
-    bus, cfg = options.load("viewer", args, ViewerSettings, keys, nice_later=True)
+    bus, cfg, args = options.start("viewer", __doc__, ViewerSettings, argv, nice_later=True)
     try:
         bus.zenoh_config()
     except zenoh.ZError as exc:
         options.fail("viewer", f"bus: {str(exc).split(' at /')[0]}")
-    from services.bus import setup_logging
-
-    setup_logging("viewer", args.log_level)
     try:
         serve(bus, cfg, Stopper(), nice=args.nice)
         # done and written: a stop request now (the launcher's, as the viewer exits by itself
