@@ -3,7 +3,7 @@
 :class:`MultiRun` is what a multi-target run is (method, :class:`MultiTargetConfig`, first-frame
 person boxes, seed); :class:`MultiTracker` is its filter, stepped with a
 :class:`~common.multitarget.appearance.PartEvidence` per frame: :class:`HistogramEvidence`
-in-process (``track_frames``), :class:`~common.part_evidence_queries.QueryPartEvidence` in the
+in-process (``track_frames``), :class:`~common.detector.remote.QueryPartEvidence` in the
 tracker service (answered by the detector service) and on offline replay (answered by the
 recorded replies). The filter only sees the evidence's answers, which are the same arrays
 whichever way they come, so the estimates are bit-identical.

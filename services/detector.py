@@ -3,7 +3,7 @@
 Holds the last few frames and the recent templates (by version); answers "frame F, these N
 hypotheses, at resampling factor k" with scores, the template query of the first frame, and the
 template adaptation's PEAK (refined angle, score and P-matrix at one point), and the multi-target
-filters' part-evidence questions (HISTOGRAMS, SIMILARITY: :mod:`common.part_evidence_queries`,
+filters' part-evidence questions (HISTOGRAMS, SIMILARITY: :mod:`common.detector.remote`,
 one integral histogram per frame). Each query is
 answered with the same functions an in-process run calls (:mod:`common.detector.client`), on
 the same kept per-frame observation (regions prepared once per client and frame), so the
@@ -21,7 +21,7 @@ from collections import OrderedDict
 from common.msgs import ScoreQuery, ScoreReply
 from common.msgs import Template as TemplateMsg
 from common.msgs.convert import msg_to_template
-from common.part_evidence_queries import PART_KINDS
+from common.detector.server import PART_KINDS
 from common.detector.server import DetectorCore, DetectorSettings, warm_up
 from services import options
 from common.validation import MAX_CLIENT_CHARS, FrameOrder, Invalid, decode

@@ -3,7 +3,7 @@
 - **Single target** (``init_box``): runs :class:`common.runner.Tracker`, querying the detector
   service. Receives frame infos (time, homography), and the frame images too when (and only when)
   the settings stabilise (the camera motion is estimated here, from the pixels). The Tracker is the
-  in-process one with a detector client that sends queries (:mod:`common.detector_queries`): the
+  in-process one with a detector client that sends queries (:mod:`common.detector.remote`): the
   template on the first frame, one batched query with all hypotheses per frame, and, as the
   settings ask, the scale search's and the re-acquisition's queries and the template adaptation's
   PEAK, the adapted template going out on the ``template`` key with a new version. Publishes the
@@ -12,7 +12,7 @@
 - **Several articulated targets** (``multi``, ``--filter epmcmc-elpda | epmcmc-pda | jpda-pf``):
   runs :class:`common.multitarget_runner.MultiTracker` on the frame infos (no pixels); every
   question of the filter about a frame's colours goes to the detector as a HISTOGRAMS or
-  SIMILARITY query (:mod:`common.part_evidence_queries`). Publishes one ``track/multi_estimate``
+  SIMILARITY query (:mod:`common.detector.remote`). Publishes one ``track/multi_estimate``
   per frame. A frame whose evidence does not come is counted in ``errors`` and gets an
   ``observed=false`` estimate of the particles as the filter left them; before the filter has
   started (no reference histograms yet) it gets none.
@@ -32,7 +32,7 @@ import time
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.detector.template import Template
-from common.detector_queries import QueryDetector
+from common.detector.remote import QueryDetector
 from common.msgs import ScoreQuery, ScoreReply
 from common.msgs.convert import estimate_msg, info_frame, info_homography, particles_msg, template_to_msg
 from common.runner import InitError, Tracker, stabilises
@@ -178,7 +178,7 @@ class MultiTarget:
         from common.multitarget import InitError as MultiInitError
         from common.msgs.convert import multi_estimate_msg
         from common.multitarget_runner import MultiTracker
-        from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
+        from common.detector.remote import EvidenceUnavailable, QueryPartEvidence
 
         c, run = self.shell.c, self.run
         size = (int(info.width), int(info.height))

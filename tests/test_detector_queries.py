@@ -5,7 +5,7 @@ queries of the new kinds get BAD_REQUEST."""
 import numpy as np
 import pytest
 
-from common.detector_queries import QueryDetector
+from common.detector.remote import QueryDetector
 from common.msgs import ScoreQuery, ScoreReply, pack
 from common.msgs.convert import estimate_msg, frame_info_msg, info_frame, msg_to_template, template_to_msg
 from common.record.retrack import same_estimate

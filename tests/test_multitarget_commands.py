@@ -14,7 +14,7 @@ from services.commands.common_args import boxes_arg
 from common.msgs.convert import multi_estimate_msg
 from common.multitarget_runner import MultiRun, MultiTracker, track_frames
 from common.record.retrack import same_multi_estimate
-from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
+from common.detector.remote import EvidenceUnavailable, QueryPartEvidence
 from common.sources import PeopleSource, SourceError, open_source
 from common.detector.server import DetectorCore
 

@@ -18,7 +18,7 @@ import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.records import Chunk
 
-from common.detector_queries import QueryDetector
+from common.detector.remote import QueryDetector
 from common.msgs import FrameInfo, RunConfig, ScoreQuery
 from common.msgs.convert import estimate_msg, info_frame, msg_to_template, template_to_msg
 from common.msgs.image_wire import encode_image

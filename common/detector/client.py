@@ -10,7 +10,7 @@ asks a client for the matching:
 - ``scale_grid(frame, k, xy)``: the scale search's scores, each on a fresh resampled crop.
 
 :class:`LocalDetector` does it in-process. Over the bus and on offline replay the same
-operations travel as queries (:mod:`common.detector_queries`), and the detector service answers
+operations travel as queries (:mod:`common.detector.remote`), and the detector service answers
 them with the functions below, called in the same order on the same pixels, so the numbers are
 bit-identical.
 """

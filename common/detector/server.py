@@ -1,7 +1,7 @@
 """The detector without the bus: frames and templates in, queries in, replies out.
 
 :class:`DetectorCore` answers the ``detector/score`` queries (AT, GRID, TEMPLATE, PEAK, and the
-multi-target filters' HISTOGRAMS and SIMILARITY: :mod:`common.part_evidence_queries`) with the
+multi-target filters' HISTOGRAMS and SIMILARITY, :func:`answer_part_query`) with the
 same functions an in-process run calls (:mod:`common.detector.client`), on the same kept
 per-frame observation (regions prepared once per client and frame), so the numbers are
 bit-identical. The detector service (``services/detector.py``) is the bus shell around it;
@@ -22,14 +22,89 @@ from common.detector import FrameCache, PolarMatcher, Template
 from common.detector.client import frame_observation, make_template, one_off_grid
 from common.detector.layout import N_ANGLES
 from common.detector.observation import DetectorObservation
-from common.msgs import ScoreQuery, ScoreReply, pack
+from common.msgs import ScoreQuery, ScoreReply, pack, unpack
 from common.msgs import Template as TemplateMsg
-from common.msgs.convert import query_hypotheses, template_to_msg
-from common.part_evidence_queries import PART_KINDS, EvidenceCache, answer_part_query
+from common.msgs.convert import PART_KINDS, REPLY_DTYPES, query_hypotheses, template_to_msg
+from common.multitarget.appearance import HistogramConfig, HistogramEvidence
 from common.validation import MAX_CLIENT_CHARS, Counters, Invalid, Rejects, check_query
 
 log = logging.getLogger("polartrack.detector")
 
+
+# -- the multi-target filters' part evidence (HISTOGRAMS, SIMILARITY) ----------------------
+
+MAX_BOXES = 5_000_000
+"""Boxes one query may ask about (a malformed query could otherwise ask for gigabytes)."""
+
+
+def _boxes(data: bytes, count: int) -> np.ndarray:
+    if count > MAX_BOXES:
+        raise ValueError(f"{count} boxes in one query (at most {MAX_BOXES})")
+    b = unpack(data, np.float64, (count, 4))
+    if not np.all(np.isfinite(b)):
+        raise ValueError("boxes contain NaN or infinite coordinates")
+    return b
+
+
+def histogram_config(text: str) -> HistogramConfig:
+    """The query's HistogramConfig (empty: the default); ValueError if malformed."""
+    if not text:
+        return HistogramConfig()
+    try:
+        return HistogramConfig.model_validate_json(text)
+    except Exception as exc:  # noqa: BLE001 - pydantic's ValidationError and JSON errors
+        raise ValueError(f"bad histogram_json: {exc}") from None
+
+
+class EvidenceCache:
+    """One :class:`HistogramEvidence` (integral histogram) per (frame, histogram config), the last few."""
+
+    def __init__(self, max_items: int = 8):
+        self.items: OrderedDict[tuple[int, str], HistogramEvidence] = OrderedDict()
+        self.max_items = max_items
+
+    def get(self, frame_index: int, image: np.ndarray, cfg: HistogramConfig) -> HistogramEvidence:
+        key = (int(frame_index), cfg.model_dump_json())
+        ev = self.items.get(key)
+        if ev is None:
+            ev = self.items[key] = HistogramEvidence(image, cfg)
+            while len(self.items) > self.max_items:
+                self.items.popitem(last=False)
+        return ev
+
+
+def answer_part_query(q: ScoreQuery, image: np.ndarray, cache: EvidenceCache, rep: ScoreReply) -> None:
+    """Fill ``rep`` with the answer to a HISTOGRAMS or SIMILARITY query about ``image``; ValueError
+    for a malformed query (the caller turns it into BAD_REQUEST)."""
+    if q.kind not in PART_KINDS:
+        raise ValueError(f"not a part-evidence query: kind {q.kind}")
+    cfg = histogram_config(q.histogram_json)
+    boxes = _boxes(q.hypotheses, q.count)
+    ev = cache.get(q.frame_index, image, cfg)
+    if q.kind == ScoreQuery.HISTOGRAMS:
+        out = ev.histograms(boxes)
+        rep.bins = out.shape[1] if out.ndim == 2 else 0
+    else:
+        r, b = int(q.reference_count), int(q.bins)
+        if r == 0 or b != cfg.n_bins:
+            raise ValueError(f"SIMILARITY needs reference histograms of {cfg.n_bins} bins, got {r} x {b}")
+        refs = unpack(q.references, np.float64, (r, b))
+        if not np.all(np.isfinite(refs)):
+            raise ValueError("reference histograms contain NaN or infinite values")
+        idx = unpack(q.ref_index, np.int64, (q.count,))
+        if idx.size and (idx.min() < 0 or idx.max() >= r):
+            raise ValueError(f"ref_index outside [0, {r})")
+        out = ev.similarity(boxes, refs, idx)
+    name = np.dtype(out.dtype).name
+    if name not in REPLY_DTYPES:
+        raise RuntimeError(f"evidence returned {name}, not float32/float64")
+    rep.dtype = name
+    rep.count = q.count
+    rep.scores = pack(out, out.dtype)
+
+
+
+# -- the detector ----------------------------------------------------------------------------
 
 class DetectorSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")

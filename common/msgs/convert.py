@@ -109,6 +109,12 @@ QUERY_WIDTHS = {ScoreQuery.AT: 3, ScoreQuery.GRID: 2, ScoreQuery.TEMPLATE: 6, Sc
 (x, y), and boxes (x0, y0, x1, y1)."""
 
 
+PART_KINDS = (ScoreQuery.HISTOGRAMS, ScoreQuery.SIMILARITY)
+"""The multi-target filters' part-evidence questions (the others are the polar matcher's)."""
+REPLY_DTYPES = {"float32": np.float32, "float64": np.float64}
+"""A part-evidence reply's ``dtype``: the array's own, so that the client gets it back bit for bit."""
+
+
 def score_query(request_id: int, client: str, frame_index: int, kind: int, hypotheses: np.ndarray,
                 **fields) -> ScoreQuery:
     """A question to the detector about frame ``frame_index``: ``hypotheses`` (count x the kind's

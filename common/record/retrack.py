@@ -39,8 +39,8 @@ def compare_estimates(recorded: list, new: list, same=same_estimate) -> dict:
 
 
 class RecordedReplies:
-    """``ask`` for a detector client (:class:`common.detector_queries.QueryDetector`, or the
-    multi-target filters' :class:`common.part_evidence_queries.QueryPartEvidence`) answered from
+    """``ask`` for a detector client (:class:`common.detector.remote.QueryDetector`, or the
+    multi-target filters' :class:`common.detector.remote.QueryPartEvidence`) answered from
     a recording: each frame's recorded queries in order, each checked against the one asked
     (every field but the request id and the client, bit for bit; a mismatch counted in
     ``stats["query_mismatch"]``) and answered with its recorded reply (none left:
@@ -152,7 +152,7 @@ def offline_retrack(path: str) -> dict:
     """Re-run the tracker over a recording's frames with the recorded detector replies and compare
     its estimates with the recorded ones. The frames' pixels are read only when stabilising, and
     then streamed (the other topics are read into memory: a few kB a frame)."""
-    from common.detector_queries import QueryDetector
+    from common.detector.remote import QueryDetector
     from common.runner import Tracker, stabilises
     from common.tracking.observation import ObservationUnavailable
 
@@ -228,7 +228,7 @@ def offline_retrack_multi(rec: Recording, run) -> dict:
     with the recorded one."""
     from common.msgs.convert import multi_estimate_msg
     from common.multitarget_runner import MultiTracker
-    from common.part_evidence_queries import EvidenceUnavailable, QueryPartEvidence
+    from common.detector.remote import EvidenceUnavailable, QueryPartEvidence
 
     recorded = rec.decoded("track/multi_estimate")
     done = {e.frame_index for e in recorded}

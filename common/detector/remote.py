@@ -1,9 +1,11 @@
-"""The Tracker's detector client over query/reply messages (the bus, or a recording of it).
+"""The detector's clients over query/reply messages: every question a tracker asks is one
+``ScoreQuery`` handed to ``ask`` (the tracker service sends it to the detector service; offline
+replay looks up the recorded reply; tests ask :class:`common.detector.server.DetectorCore`
+directly), and each ``ScoreReply`` comes back as numbers. The answering side is
+:mod:`common.detector.server`, the in-process client :mod:`common.detector.client`.
 
-:class:`QueryDetector` implements :class:`common.detector.client.DetectorClient` by turning each
-operation into a :class:`ScoreQuery` handed to ``ask`` (the tracker service sends it to the
-detector service; offline replay looks up the recorded reply) and each :class:`ScoreReply` back
-into numbers:
+:class:`QueryDetector` implements :class:`common.detector.client.DetectorClient` for the
+single-target tracker:
 
 - ``build_template`` -> TEMPLATE at the factor (the reply carries the template and its version);
 - the frame observation's ``score_at`` / ``score_grid`` -> AT / GRID at the factor;
@@ -14,7 +16,19 @@ into numbers:
 
 A missing or failed reply raises :class:`ObservationUnavailable`: no observation (the filter
 predicts only), no scale correction, no template update.
+
+:class:`QueryPartEvidence` is the multi-target filters' :class:`~common.multitarget.appearance.PartEvidence`.
+The filters ask a frame two batched questions: the colour histograms of Q boxes (HISTOGRAMS:
+``hypotheses`` = the boxes, float64 Q x 4), and the Bhattacharyya similarity of Q boxes to
+reference histograms (SIMILARITY: the boxes, the references as float64 R x B, lossless for the
+filters' float32 histograms, and ``ref_index``, int64 Q), both with the :class:`HistogramConfig`
+as JSON. The detector answers with the very :class:`~common.multitarget.appearance.HistogramEvidence`
+methods an in-process run calls on the same pixels; the reply carries the result's dtype and its
+bytes, so the client returns the same array, bit for bit. A missing or failed reply raises
+:class:`EvidenceUnavailable`.
 """
+
+
 
 from __future__ import annotations
 
@@ -26,9 +40,10 @@ import numpy as np
 from common.detector.layout import N_ANGLES, N_ROWS
 from common.detector.matcher import check_hypotheses
 from common.detector.template import Template
-from common.msgs import ScoreQuery, ScoreReply, unpack
-from common.msgs.convert import msg_to_template, pmatrix_from_bytes, score_query
+from common.msgs import ScoreQuery, ScoreReply, pack, unpack
+from common.msgs.convert import REPLY_DTYPES, msg_to_template, pmatrix_from_bytes, score_query
 from common.msgs.convert import reply_scores as codec_reply_scores
+from common.multitarget.appearance import HistogramConfig
 from common.tracking.observation import ObservationUnavailable
 
 Ask = Callable[[ScoreQuery], "ScoreReply | None"]
@@ -139,3 +154,47 @@ class QueryObservation:
     def pmatrix_at(self, x: float, y: float) -> np.ndarray | None:
         """The P-matrix at one point (from the same PEAK reply as ``refine_peak`` there)."""
         return self._peak_at(x, y)[3]
+
+
+class EvidenceUnavailable(ObservationUnavailable):
+    """No (usable) reply to a part-evidence query."""
+
+
+class QueryPartEvidence:
+    """:class:`PartEvidence` of one frame, every question one query answered by ``ask``."""
+
+    def __init__(self, ask: Ask, client: str, frame_index: int, image_size: tuple[int, int],
+                 cfg: HistogramConfig | None = None, ids=None):
+        self.ask = ask
+        self.client = client
+        self.frame_index = int(frame_index)
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.cfg = cfg if cfg is not None else HistogramConfig()
+        self._json = self.cfg.model_dump_json()
+        self._ids = ids if ids is not None else itertools.count(1)
+
+    def _query(self, kind: int, boxes: np.ndarray, **fields) -> np.ndarray:
+        b = np.asarray(boxes, np.float64).reshape(-1, 4)
+        q = score_query(next(self._ids), self.client, self.frame_index, kind, b, histogram_json=self._json, **fields)
+        rep = self.ask(q)
+        if rep is None:
+            raise EvidenceUnavailable(f"no reply for frame {self.frame_index}")
+        if rep.status != ScoreReply.OK:
+            raise EvidenceUnavailable(f"detector: {ScoreReply.Status.Name(rep.status)}: {rep.error}")
+        dtype = REPLY_DTYPES.get(rep.dtype)
+        shape = (len(b), rep.bins) if kind == ScoreQuery.HISTOGRAMS else (len(b),)
+        try:
+            if dtype is None or rep.count != len(b):
+                raise ValueError(f"dtype {rep.dtype!r}, count {rep.count} for {len(b)} boxes")
+            return unpack(rep.scores, dtype, shape)
+        except ValueError as exc:
+            raise EvidenceUnavailable(f"detector: malformed reply: {exc}") from None
+
+    def histograms(self, boxes: np.ndarray) -> np.ndarray:
+        return self._query(ScoreQuery.HISTOGRAMS, boxes)
+
+    def similarity(self, boxes: np.ndarray, references: np.ndarray, ref_index: np.ndarray) -> np.ndarray:
+        refs = np.asarray(references, np.float64)
+        idx = np.asarray(ref_index).astype(np.int64, copy=False).ravel()
+        return self._query(ScoreQuery.SIMILARITY, boxes, reference_count=refs.shape[0], bins=refs.shape[1],
+                           references=pack(refs), ref_index=pack(idx, np.int64))
