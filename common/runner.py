@@ -29,11 +29,8 @@ from common.stabilise import CameraMotionEstimator
 from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world
 from common.tracking.motion import NearConstantVelocity
+from common.tracking.state import InitError
 from common.tracking.observation import ObservationUnavailable
-
-
-class InitError(ValueError):
-    """The initial box is unusable; the message says why and what to do."""
 
 
 def check_init_box(box: tuple[float, float, float, float], width: int, height: int) -> None:

@@ -175,7 +175,6 @@ class MultiTarget:
                  self.run.config.n_parts, self.run.config.n_particles)
 
     def step(self, info, skipped: int, stopper: Stopper) -> bool:
-        from common.multitarget import InitError as MultiInitError
         from common.msgs.convert import multi_estimate_msg
         from common.multitarget_runner import MultiTracker
         from common.detector.remote import EvidenceUnavailable, QueryPartEvidence
@@ -197,7 +196,7 @@ class MultiTarget:
             log.warning("frame %d: no evidence (%s): prediction only", info.index, exc)
             msg = self.tracker.prediction_msg(int(info.index), info.time_s, info.capture_ns,
                                               1e3 * (time.perf_counter() - t0))
-        except (MultiInitError, ValueError) as exc:
+        except ValueError as exc:  # InitError among them
             c.add("errors")
             log.error("cannot start on frame %d: %s", info.index, exc)
             return False

@@ -6,15 +6,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.tracking.state import InitError  # noqa: F401 (one error for every tracker; re-exported)
+
 from .body import BodyModel
 
 # A standing person's extent about the torso centre, in units of H (see common.scene.people.body):
 # head top 0.295 H above, feet 0.65 H below.
 _HEAD_TOP, _FEET = 0.295, 0.65
-
-
-class InitError(ValueError):
-    """Unusable initialisation (bad boxes); the message says how to fix it."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -17,6 +17,11 @@ from .kernel_density import kernel_density
 from .motion import wrap_degrees
 from .resampling import ess
 
+
+class InitError(ValueError):
+    """The first box (or person boxes) cannot start a track; the message says why and how to fix it.
+    One error for the single-target tracker and the multi-target filters."""
+
 PARTICLE_COLUMNS = ("x", "vx", "y", "vy", "theta")
 """Columns of a particle array: world position/velocity (Pang's X_t) and image-plane orientation (degrees)."""
 

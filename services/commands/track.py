@@ -56,8 +56,7 @@ def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int
     from tqdm import tqdm
 
     from services.commands.errors import UsageError
-    from common.multitarget import InitError as MultiInitError
-    from common.runner import InitError
+    from common.tracking.state import InitError
     from common.sources import SourceError
 
     total = None if source.live else len(source)
@@ -80,7 +79,7 @@ def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int
         finally:
             if args.out:
                 out.close()
-    except (InitError, MultiInitError, SourceError) as exc:
+    except (InitError, SourceError) as exc:
         raise UsageError(str(exc)) from None
     finally:
         bar.close()
