@@ -178,9 +178,9 @@ RECOVERY_PROPOSAL = {"candidates": 3, "jump_candidates": 2, "jump_probability": 
 """RBPF settings beyond Pang for occlusion recovery (``polartrack study``'s ``rbpf+jumps`` row; all
 off by default): a jump component in the motion model for visible targets (probability 0.01 a
 step, 2 m per axis), explored by two of three candidates per particle (the filter carries N
-particles and scores 3N hypotheses a frame in its one batched query). Measured on the synthetic
-scene: the failing seeds of Pang's filter lock onto a secondary peak half a car length ahead of a
-car emerging from the smoke, which the plain NCV cannot leave (see the README's results)."""
+particles and scores 3N hypotheses a frame in its one batched query). It lets the cloud leave a
+secondary peak of the score surface (a car emerging from the smoke matches best half a car length
+ahead), which the plain NCV cannot; the figures are in docs/results.md."""
 
 
 CAR_LENGTH_M = 4.5
@@ -200,9 +200,8 @@ percent (a time constant of about a second, the time a car takes to turn), the o
 half the weight."""
 REAL_PARTICLES = 400
 """Particles for real footage (Pang: 200). The cloud must cover the prior's spread of a car that
-may brake or turn hard (above) with the prior as proposal; measured on both real sequences,
-doubling N added more frames tracked through the hardest manoeuvres and cost about 5 ms a frame
-(``particles`` overrides it)."""
+may brake or turn hard (above) with the prior as proposal (``particles`` overrides it; the
+measurement behind the figure is in docs/real-footage.md)."""
 REAL_INIT_VEL_LENGTHS = round(10.0 / CAR_LENGTH_M, 1)
 """Initial velocity spread for real footage, target lengths per second: an urban speed of
 10 m/s (2.2 lengths/s) at 1 sigma; the first box says where the target is, not how it moves."""

@@ -66,19 +66,15 @@ class LikelihoodConfig(_Frozen):
         description="Occlusion-aware appearance: the share of a part's box covered by targets in front of its "
         "target (their rest-pose boxes at the predicted torsos, :mod:`.occlusion`) counts as this similarity "
         "instead of its pixels' (which are the occluder's), so a person passing behind another is not pulled "
-        "onto its own visible edge or a look-alike. Set on seeds 100-119 (two runs): 0.75 lowered the RMSE of "
-        "ELPDA 4.92 -> 4.76 px and PDA 4.97 -> 4.83 with the same identities kept; 0.85 rewards hiding (a "
-        "person lost behind others on seed 118). None: the pixels count.",
+        "onto its own visible edge or a look-alike; a value near 1 would reward hiding. None: the pixels count "
+        "(how 0.75 was set: docs/results.md).",
     )
     visible_pixels_only: bool = Field(
         False,
         description="With hidden_similarity: a partly covered part's rho is taken on the largest strip of its box "
         "that no target in front covers (:func:`.occlusion.visible_strip`), not on the whole box with the "
         "occluder's pixels in it, which makes a half-hidden part on its own spot score below one hidden whole "
-        "behind the occluder. Off by default: on seeds 100-119 (two runs) ELPDA went 4.75 -> 4.74 px and beat "
-        "PDA on 15 of 20 scenes against 12, but on seeds 0-39 (three runs) the scenes where ELPDA beats PDA "
-        "only moved (0.85 -> 0.65 on 0-19, 0.70 -> 0.85 on 20-39), ELPDA kept identities on 39 of 40 against "
-        "38, every method's RMSE rose on 20-39 (ELPDA 4.65 -> 4.86 px), and a step took 20-25 % longer.",
+        "behind the occluder. Off by default: it did not pay on fresh seeds (docs/results.md).",
     )
     w_appearance: float = Field(
         0.3, ge=0,
@@ -114,8 +110,7 @@ class GateConfig(_Frozen):
         description="Structure-level gates: a measurement is where the target's *core* matches -- the parts whose "
         "offset from their parent may deviate at most this from the preferred one (units of H): the torso and "
         "head. The limbs swing by more than their boxes' width, so a match that shifts the predicted limbs "
-        "with the torso is pulled off by them (measured: median error of the best match 2.3 px with all ten "
-        "parts at the rest pose, 1.2 px with torso and head). None: all parts.",
+        "with the torso is pulled off by them. None: all parts.",
     )
     adaptive: bool = Field(
         False,
@@ -229,7 +224,8 @@ class DepthConfig(_Frozen):
 
 
 class PlacementConfig(_Frozen):
-    """Placing a body in a person box: the shift search (:mod:`.placement`); set on seeds 100-119."""
+    """Placing a body in a person box: the shift search (:mod:`.placement`); set on the tuning seeds
+    100-119 (docs/results.md)."""
 
     search_x: float = Field(0.08, ge=0, le=0.5, description="Largest sideways shift searched, units of H (0 with search_y 0: no search).")
     search_y: float = Field(0.04, ge=0, le=0.5, description="Largest shift up or down searched, units of H.")
@@ -253,8 +249,8 @@ class MultiTargetConfig(_Frozen):
     n_parts: Literal[1, 2, 6, 10] = Field(10, description="Pictorial-structure model (paper Fig. 8 levels).")
     n_particles: int = Field(
         500, ge=2, le=100_000,
-        description="Particles per target (paper section 4.1: 500). With 200, the Monte Carlo spread of one run's "
-        "combined RMSE (0.2-0.3 px, seeds 100-119) was larger than the differences between the methods.",
+        description="Particles per target (paper section 4.1: 500; with fewer, one run's Monte Carlo spread "
+        "outgrows the differences between the methods: docs/results.md).",
     )
     init_spread: float = Field(2.0, ge=0, description="Std of the initial particles about the initial part positions, px.")
     init_speed_spread: float = Field(

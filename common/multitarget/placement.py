@@ -5,18 +5,15 @@ and legs make the box lopsided, so the box's centre line misses the body axis by
 (4 px for a 70 px person on the synthetic scene, 2.6 px RMS), and the head-top convention of the
 box source sets the height at which the torso sits. The reference histograms are taken where the
 body is placed, so a misplaced body takes in background, and a reference with background in it
-prefers the static background to the person walking off it: started from the boxes' centre lines,
-EPMCMC + ELPDA kept every identity on only 7 of the 20 tuning scenes (seeds 100-119, one run each,
-RMSE 18.2 px); with the shift search below, on 18 (6.9 px). Wider searches (0.12 H, 0.06 H) or
-rings (0.5 H) did worse: 15 and 16 scenes.
+prefers the static background to the person walking off it (the figures, on the tuning seeds:
+docs/results.md).
 
 So each body placed in its box (:meth:`~.state.MultiInit.from_boxes`) is shifted, on a 1 px grid
 within ``search_x`` H sideways and ``search_y`` H up or down, to where its core parts (torso and
 head) differ most from the surroundings: the histogram of a ring of width ``ring`` H around the
 box. Score of a shift: the area-weighted mean over the core parts of 1 - rho(part box, ring)
-(Bhattacharyya coefficient rho); the highest wins, the nearest shift among equals. On the tuning
-seeds' first frames this took the torso's placement error from 3.3 to 2.5 px RMS, and the
-placements more than 3 px off from 35 to 5 of 60. Two batched histogram calls, through
+(Bhattacharyya coefficient rho); the highest wins, the nearest shift among equals. Two batched
+histogram calls, through
 :class:`~.appearance.PartEvidence` (so the tracker service does it over the bus).
 """
 

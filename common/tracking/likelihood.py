@@ -91,8 +91,7 @@ class ExponentialScoreLikelihood(BaseModel):
         description="True (default): the occluded log-likelihood is k * NV_c, so V=1 is favoured when "
         "score > NV_c, as the paper's prose requires ('NV_c ... higher than the background correlation "
         "score ... but much less than the self correlation score'). False: literally eq. 15 as printed, "
-        "exp(NV_c), which favours V=1 whenever score > NV_c / k = 0.04, i.e. almost everywhere (measured: "
-        "p_visible stays near 0.8 through a full occlusion of the synthetic scene).",
+        "exp(NV_c), which favours V=1 whenever score > NV_c / k = 0.04, i.e. almost everywhere.",
     )
 
     def log_likelihood(self, scores: np.ndarray) -> np.ndarray:

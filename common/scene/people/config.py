@@ -57,8 +57,8 @@ class PeopleSceneConfig(BaseModel):
     lookalike_hue_deg: tuple[float, float] = Field(
         (25.0, 40.0),
         description="Range of the hue turn (degrees, random sign) of a look-alike's shirt against its "
-        "person's (12 hue bins of 15 degrees: 10-20 degrees left the look-alikes as similar as the person "
-        "itself, on seeds 100-109).",
+        "person's (12 hue bins of 15 degrees: a turn within one or two bins leaves a look-alike as similar "
+        "as the person itself).",
     )
     illumination_low: float = Field(
         0.7, gt=0.05, le=1.5,
