@@ -10,7 +10,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from common.stabilise import StabiliserConfig
+from common.single_target.stabilise import StabiliserConfig
 from common.tracking import RBPFConfig, SIRConfig, WindowedMLConfig
 from common.tracking.motion import NearConstantVelocity
 
@@ -25,7 +25,7 @@ class TemplateAdaptation(BaseModel):
     (:func:`common.detector.template.rotate_pmatrix`), normalised, and blended into an adaptive
     part ``A <- normalise((1 - rate) A + rate F)``; the template used is
     ``normalise(anchor * H0 + (1 - anchor) * A)`` with ``H0`` the normalised original: however
-    many updates, the original keeps weight ``anchor`` (see :mod:`common.adaptation`)."""
+    many updates, the original keeps weight ``anchor`` (see :mod:`common.single_target.adaptation`)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -42,7 +42,7 @@ class TemplateAdaptation(BaseModel):
 
 
 class ScaleSettings(BaseModel):
-    """Matching at the target's scale (see :mod:`common.scale` and :mod:`common.detector.resample`).
+    """Matching at the target's scale (see :mod:`common.single_target.scale` and :mod:`common.detector.resample`).
 
     The frame is matched resampled by ``k = u / s_t``: ``u`` enlarges a small target so that its
     long side is about ``target_size_px`` (chosen once from the initial box), ``s_t`` is the
@@ -83,7 +83,7 @@ class ScaleSettings(BaseModel):
 
 
 class ReacquisitionSettings(BaseModel):
-    """Loss detection and the search that re-acquires a lost target (see :mod:`common.reacquire`)."""
+    """Loss detection and the search that re-acquires a lost target (see :mod:`common.single_target.reacquire`)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 

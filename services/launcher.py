@@ -162,7 +162,7 @@ class Pipeline:
         service)`` is called after each restart (fault-injection tests). ``recorder_options``:
         more keys of the recorder's settings (``services.recorder.RecorderSettings``). ``prerender``: the ingest service reads or renders every frame before publishing the
         first (see :class:`common.sources.PrerenderedSource`). ``multi``: a
-        :class:`common.multitarget_runner.MultiRun` (multi-target filters; ``init_box`` is then None
+        :class:`common.multitarget.runner.MultiRun` (multi-target filters; ``init_box`` is then None
         and ``settings`` only the single-target defaults)."""
         self.multi = multi
         self.prerender = prerender
@@ -446,7 +446,7 @@ class Pipeline:
 
         from common.msgs import Estimate, FrameInfo, MultiEstimate
         from common.msgs.convert import msg_positions
-        from common.multitarget_runner import people_truth_parts
+        from common.multitarget.runner import people_truth_parts
         from common.validation import (FrameOrder, Guard, Invalid, Senders, check_estimate, check_frame_info,
                                        check_multi_estimate, check_status, parse_rejects)
         from services.bus import Inbox, attachment_sender, payload_bytes

@@ -21,7 +21,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.record.reader import run_metadata
+from common.record.meta import run_metadata
 from services import options
 from common.record.writer import SplitSink
 from common.msgs import TOPICS, Estimate, FrameInfo, MultiEstimate, ParticleCloud, ServiceStatus

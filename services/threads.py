@@ -2,7 +2,7 @@
 
 The five services share the machine's cores; OpenCV starts a thread per core in every process,
 and on a 2-core machine shared by five services that only adds switching. OpenCV's results here
-do not depend on its thread count (see common/stabilise.py). BLAS is on one thread in every
+do not depend on its thread count (see common/single_target/stabilise.py). BLAS is on one thread in every
 process already (common/__init__.py: its results do depend on the count).
 """
 

@@ -1,6 +1,6 @@
 """Tracker service: one shell, two modes.
 
-- **Single target** (``init_box``): runs :class:`common.runner.Tracker`, querying the detector
+- **Single target** (``init_box``): runs :class:`common.single_target.runner.Tracker`, querying the detector
   service. Receives frame infos (time, homography), and the frame images too when (and only when)
   the settings stabilise (the camera motion is estimated here, from the pixels). The Tracker is the
   in-process one with a detector client that sends queries (:mod:`common.detector.remote`): the
@@ -10,7 +10,7 @@
   estimate and the particle cloud. A missing reply (detector down, timeout) is "no observation":
   the filter predicts only.
 - **Several articulated targets** (``multi``, ``--filter epmcmc-elpda | epmcmc-pda | jpda-pf``):
-  runs :class:`common.multitarget_runner.MultiTracker` on the frame infos (no pixels); every
+  runs :class:`common.multitarget.runner.MultiTracker` on the frame infos (no pixels); every
   question of the filter about a frame's colours goes to the detector as a HISTOGRAMS or
   SIMILARITY query (:mod:`common.detector.remote`). Publishes one ``track/multi_estimate``
   per frame. A frame whose evidence does not come is counted in ``errors`` and gets an
@@ -35,7 +35,7 @@ from common.detector.template import Template
 from common.detector.remote import QueryDetector
 from common.msgs import ScoreQuery, ScoreReply
 from common.msgs.convert import estimate_msg, info_frame, info_homography, particles_msg, template_to_msg
-from common.runner import InitError, Tracker, stabilises
+from common.single_target.runner import InitError, Tracker, stabilises
 from common.settings import TrackerSettings
 from common.tracking.observation import ObservationUnavailable
 from services import options
@@ -52,7 +52,7 @@ class TrackerServiceSettings(BaseModel):
 
     init_box: tuple[float, float, float, float] | None = Field(
         None, description="target box x, y, w, h in the first frame (single-target filters)")
-    multi: str | None = Field(None, description="a multi-target run (common.multitarget_runner.MultiRun as JSON: "
+    multi: str | None = Field(None, description="a multi-target run (common.multitarget.runner.MultiRun as JSON: "
                               "method, config, first-frame person boxes, seed); set: the multi-target mode")
     settings: TrackerSettings = Field(default_factory=TrackerSettings, description="the filter's settings")
     client: str = Field("tracker", description="name in queries (the detector caches regions per client)")
@@ -94,7 +94,7 @@ def warm_up() -> None:
 
 
 class SingleTarget:
-    """The single-target mode: :class:`common.runner.Tracker` with a detector client over queries."""
+    """The single-target mode: :class:`common.single_target.runner.Tracker` with a detector client over queries."""
 
     def __init__(self, cfg: TrackerServiceSettings, shell: "Shell"):
         if cfg.init_box is None:
@@ -161,10 +161,10 @@ class SingleTarget:
 
 
 class MultiTarget:
-    """The multi-target mode: :class:`common.multitarget_runner.MultiTracker`, its colour evidence over queries."""
+    """The multi-target mode: :class:`common.multitarget.runner.MultiTracker`, its colour evidence over queries."""
 
     def __init__(self, cfg: TrackerServiceSettings, shell: "Shell"):
-        from common.multitarget_runner import MultiRun
+        from common.multitarget.runner import MultiRun
 
         self.cfg, self.shell = cfg, shell
         self.run = MultiRun.from_json(cfg.multi)
@@ -176,7 +176,7 @@ class MultiTarget:
 
     def step(self, info, skipped: int, stopper: Stopper) -> bool:
         from common.msgs.convert import multi_estimate_msg
-        from common.multitarget_runner import MultiTracker
+        from common.multitarget.runner import MultiTracker
         from common.detector.remote import EvidenceUnavailable, QueryPartEvidence
 
         c, run = self.shell.c, self.run

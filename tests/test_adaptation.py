@@ -4,12 +4,12 @@ import numpy as np
 from dataclasses import replace
 import pytest
 
-from common.adaptation import TemplateAdapter
+from common.single_target.adaptation import TemplateAdapter
 from common.detector import FrameCache, PolarMatcher, Template, prepare_frame
 from common.detector.observation import DetectorObservation
 from common.detector.sampler import sample_pmatrices
 from common.detector.template import correlation, rotate_pmatrix
-from common.runner import Tracker, make_filter
+from common.single_target.runner import Tracker, make_filter
 from common.settings import TemplateAdaptation, profile_for
 from common.sources import open_source
 from imagegen import blob_image

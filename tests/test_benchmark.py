@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from common.benchmark import SUCCESS_THRESHOLDS, box_iou, mean_scores, score_boxes, success_curve
+from common.evaluation.benchmark import SUCCESS_THRESHOLDS, box_iou, mean_scores, score_boxes, success_curve
 from services.cli import main
 from common.evaluation import precision_curve
 from common.sources import SyntheticSource

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from common.calibration import calibrate, fit_beta
+from common.evaluation.calibration import calibrate, fit_beta
 from common.sources import open_source
 
 
@@ -22,7 +22,7 @@ def test_calibration_on_synthetic_scene(tmp_path):
     assert cal.visible.mean() > 0.5 > cal.background.mean() + 0.3
     (a1, b1), (a0, b0) = cal.visible_ab, cal.background_ab
     assert a1 / (a1 + b1) > 0.5 > a0 / (a0 + b0)  # fitted means on the right sides
-    from common.calibration import plot_calibration
+    from common.evaluation.calibration import plot_calibration
 
     plot_calibration(cal, str(tmp_path / "cal.png"))
     assert (tmp_path / "cal.png").stat().st_size > 10_000

@@ -175,3 +175,31 @@ def test_service_status_carries_the_counters():
     c.add("errors")
     s = ServiceStatus.FromString(c.status(final=True).SerializeToString())
     assert (s.service, s.received, s.errors, s.published, s.final) == ("tracker", 3, 1, 0, True) and s.cpu_s > 0
+
+
+# -- the run's configuration ---------------------------------------------------------------------
+
+def test_run_config_is_typed_and_older_json_text_reads_the_same():
+    """RunConfig carries the settings, versions and a multi-target run as typed fields (Struct,
+    map); the recording's ``run`` metadata (text, as MCAP metadata is) holds them as JSON, bit for
+    bit the settings that ran, and a RunConfig written before (JSON text fields) reads the same."""
+    import json
+
+    from google.protobuf.json_format import Parse
+
+    from common.msgs import RunConfig
+    from common.record.meta import run_config_json, run_metadata
+    from common.settings import TrackerSettings, profile_for
+
+    st = profile_for(SimpleNamespace(name="clip", fps=29.97), filter="sir", seed=2**40 + 1, particles=333)
+    typed = Parse(run_config_json("r", "clip.mp4", (1.5, 2.0, 3.0, 4.0), st, "realtime"), RunConfig())
+    assert typed.settings["sir"]["n_particles"] == 333 and typed.versions["numpy"] and not typed.settings_json
+    meta = run_metadata(typed.SerializeToString())
+    assert TrackerSettings.model_validate_json(meta["settings_json"]) == st
+    assert json.loads(meta["settings_json"])["seed"] == 2**40 + 1  # an integer again, exact
+    assert json.loads(meta["versions_json"]) == dict(typed.versions) and meta["multi_json"] == ""
+    legacy = RunConfig(run_id="r", source="clip.mp4", init_box=[1.5, 2.0, 3.0, 4.0], seed=st.seed, pace="realtime",
+                       settings_json=st.model_dump_json(), versions_json=meta["versions_json"])
+    old = run_metadata(legacy.SerializeToString())
+    assert set(old) == set(meta) and TrackerSettings.model_validate_json(old["settings_json"]) == st
+    assert {k: v for k, v in old.items() if k != "settings_json"} == {k: v for k, v in meta.items() if k != "settings_json"}

@@ -295,7 +295,7 @@ def test_run_file_fits_the_synthetic_scene():
     run = json.loads(keys["run_config"])
     assert run["source"] == keys["source"] == "synthetic:0" and run["pace"] == keys["pace"] == "consumer"
     assert tuple(run["init_box"]) == tkeys["init_box"] and tkeys["skip_stale"] is False
-    assert TrackerSettings.model_validate_json(run["settings_json"]) == tkeys["settings"] == settings
+    assert TrackerSettings.model_validate(run["settings"]) == tkeys["settings"] == settings
     assert run["seed"] == settings.seed
     # the services load both files as compose gives them
     _, ingest = load_settings("ingest", tomllib.loads((DEPLOY / "ingest.toml").read_text()))

@@ -15,7 +15,7 @@ from common.msgs.convert import estimate_msg
 from common.msgs.image_wire import CAMERA_FRAME, decode_frame
 from common.record.retrack import offline_retrack, same_estimate
 from common.record.reader import read_recording
-from common.runner import track_frames
+from common.single_target.runner import track_frames
 from common.settings import profile_for
 from common.sources import open_source
 from common.sources.published import PublishedSource, as_published, parse_image_format

@@ -7,7 +7,7 @@ import common.detector.frame as frame_mod
 from common.detector import PolarMatcher, Template, prepare_frame
 from common.detector.layout import column_harmonics
 from common.detector.sampler import sample_pmatrices
-from common.imageio import read_rgb
+from common.sources.imageio import read_rgb
 from imagegen import DATA, angle_error, blob_image, rotate_about
 
 SWEEP = np.arange(0, 91, 5)

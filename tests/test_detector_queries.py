@@ -9,7 +9,7 @@ from common.detector.remote import QueryDetector
 from common.msgs import ScoreQuery, ScoreReply, pack
 from common.msgs.convert import estimate_msg, frame_info_msg, info_frame, msg_to_template, template_to_msg
 from common.record.retrack import same_estimate
-from common.runner import Tracker
+from common.single_target.runner import Tracker
 from common.sources import open_source
 from parity import parity_settings
 from common.detector.server import DetectorCore

@@ -12,7 +12,7 @@ from services.cli import main
 from common.msgs import pack
 from services.commands.common_args import boxes_arg
 from common.msgs.convert import multi_estimate_msg
-from common.multitarget_runner import MultiRun, MultiTracker, track_frames
+from common.multitarget.runner import MultiRun, MultiTracker, track_frames
 from common.record.retrack import same_multi_estimate
 from common.detector.remote import EvidenceUnavailable, QueryPartEvidence
 from common.sources import PeopleSource, SourceError, open_source

@@ -1,4 +1,4 @@
-"""Loss and re-acquisition (common/reacquire.py) and the scale through a 10x zoom, on the synthetic
+"""Loss and re-acquisition (common/single_target/reacquire.py) and the scale through a 10x zoom, on the synthetic
 event sequences of common/scene/events.py (real-footage profile: no homography, stabilised)."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import pytest
 from scipy.stats import beta
 
 from common.detector.layout import SUPPORT_RADIUS_PX
-from common.reacquire import Reacquirer, acceptance_threshold
-from common.runner import Tracker
+from common.single_target.reacquire import Reacquirer, acceptance_threshold
+from common.single_target.runner import Tracker
 from common.scene.events import ExitSource, ZoomSource
 from common.settings import ReacquisitionSettings, profile_for
 from common.tracking.state import Estimate, TrackState

@@ -24,7 +24,7 @@ from common.msgs.convert import estimate_msg, info_frame, msg_to_template, templ
 from common.msgs.image_wire import encode_image
 from common.record.reader import MAX_CHUNK_BYTES, RecordingError, read_recording, run_metadata, stream_messages
 from common.record.retrack import offline_retrack
-from common.runner import Tracker
+from common.single_target.runner import Tracker
 from common.sources import open_source
 from parity import parity_settings, rewrite_mcap
 from services.cli import main

@@ -8,7 +8,7 @@ from common.detector import FrameCache, PolarMatcher, Template
 from common.detector.client import one_off_grid
 from common.detector.observation import DetectorObservation
 from common.detector.resample import ResampledObservation, quantise_factor, sample_template_pmatrix
-from common.scale import ScaleTracker, upsample_factor
+from common.single_target.scale import ScaleTracker, upsample_factor
 from common.settings import ScaleSettings
 
 

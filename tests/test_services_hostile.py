@@ -17,7 +17,7 @@ from common.msgs import (Estimate, FrameInfo, ImageAnnotations, MultiEstimate, P
                          ScoreReply, ServiceStatus, Template, pack)
 from common.msgs.convert import image_to_msg
 from common.record.reader import read_recording
-from common.runner import track_frames
+from common.single_target.runner import track_frames
 from common.settings import profile_for
 from common.sources import open_source
 from services.bus import BusConfig, attachment_sender, open_session

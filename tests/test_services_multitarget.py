@@ -16,7 +16,7 @@ from common.msgs import ScoreQuery, ScoreReply, ServiceStatus, pack
 from common.msgs.image_wire import encode_image
 from common.multitarget import HistogramEvidence
 from common.msgs.convert import multi_estimate_msg
-from common.multitarget_runner import MultiRun, track_frames
+from common.multitarget.runner import MultiRun, track_frames
 from common.record.retrack import same_multi_estimate
 from common.record.retrack import offline_retrack
 from common.record.reader import read_recording

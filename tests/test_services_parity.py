@@ -11,7 +11,7 @@ from common.msgs import ScoreQuery, ScoreReply
 from common.msgs.convert import estimate_msg
 from common.record.retrack import offline_retrack, same_estimate
 from common.record.reader import read_recording
-from common.runner import Tracker
+from common.single_target.runner import Tracker
 from common.sources import open_source
 from parity import parity_settings, rewrite_mcap
 from services.launcher import Pipeline

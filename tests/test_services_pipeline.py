@@ -13,7 +13,7 @@ import pytest
 from common.msgs import Estimate, ScoreQuery, ScoreReply
 from common.record.retrack import offline_retrack
 from common.record.reader import read_recording
-from common.runner import track_frames
+from common.single_target.runner import track_frames
 from common.settings import profile_for
 from common.sources import open_source
 from parity import rewrite_mcap

@@ -9,7 +9,7 @@ from common.msgs import ScoreQuery
 from common.msgs.convert import estimate_msg
 from common.record.retrack import offline_retrack, same_estimate
 from common.record.reader import read_recording
-from common.runner import Tracker
+from common.single_target.runner import Tracker
 from common.sources import open_source
 from common.settings import profile_for
 from services.launcher import Pipeline

@@ -1,10 +1,10 @@
-"""Camera-motion estimation (common.stabilise): accuracy on a known warp, determinism, fallbacks."""
+"""Camera-motion estimation (common.single_target.stabilise): accuracy on a known warp, determinism, fallbacks."""
 
 import cv2
 import numpy as np
 import pytest
 
-from common.stabilise import CameraMotionEstimator, StabiliserConfig
+from common.single_target.stabilise import CameraMotionEstimator, StabiliserConfig
 from common.tracking.camera import apply_homography
 from imagegen import DATA
 
@@ -137,7 +137,7 @@ def test_same_homographies_whatever_opencv_thread_count(tmp_path):
         "cv2.setNumThreads(int(sys.argv[1]))\n"
         "sys.path.insert(0, sys.argv[2])\n"
         "from test_stabilise import _texture, _known_warp, _warp\n"
-        "from common.stabilise import CameraMotionEstimator\n"
+        "from common.single_target.stabilise import CameraMotionEstimator\n"
         "img = _texture(); g = _known_warp(img.shape[1], img.shape[0])\n"
         "est = CameraMotionEstimator(); est.start(img)\n"
         "h = est.update(_warp(img, g), exclude_xy=(240, 180), exclude_radius=30)\n"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from common.evaluation import recovered, reemergence_frame
-from common.runner import Tracker
+from common.single_target.runner import Tracker
 from common.settings import RECOVERY_PROPOSAL, profile_for
 from common.sources import SyntheticSource
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from services.cli import main
-from common.runner import Tracker
+from common.single_target.runner import Tracker
 from common.settings import profile_for
 from common.sources import open_source
 from test_scale import texture

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common.detector.client import LocalDetector  # noqa: E402
 from common.detector.resample import quantise_factor  # noqa: E402
-from common.scale import upsample_factor  # noqa: E402
+from common.single_target.scale import upsample_factor  # noqa: E402
 from common.settings import ScaleSettings  # noqa: E402
 from common.sources import open_source  # noqa: E402
 

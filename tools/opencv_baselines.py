@@ -7,7 +7,7 @@ depend on (it uses opencv-python-headless), so run this in a throw-away environm
         python tools/opencv_baselines.py /work/shared/data/uavdt-S1001
 
 ``polartrack benchmark --peers`` runs it so and scores the boxes with the same scorer as
-PolarTrack's (``common/benchmark.py``); this script does not score. Every tracker starts from
+PolarTrack's (``common/evaluation/benchmark.py``); this script does not score. Every tracker starts from
 ``--init X,Y,W,H`` (0-based pixels; default: the first ground-truth box, whose UAV123 boxes count
 from 1 and are shifted by one pixel, as ``common.sources.FolderSource`` does), rounded to whole
 pixels as OpenCV's trackers take it. A tracker that reports failure on a frame keeps its last box

@@ -1,13 +1,13 @@
 """Compare a recording of ``polartrack run`` with ``polartrack track`` on the same frames.
 
-Re-tracks the recorded source in-process (``common.runner.track_frames``, the code behind
+Re-tracks the recorded source in-process (``common.single_target.runner.track_frames``, the code behind
 ``polartrack track``) with the recorded initial box and settings, over the frames the recording
 has estimates for, and compares every estimate field by field, bit for bit
 (``common.record.reader.compare_estimates``). Optionally also checks a ``polartrack track`` CSV
 against the recorded estimates at the CSV's precision.
 
 Multi-target recordings (``--filter epmcmc-elpda|epmcmc-pda|jpda-pf``) are re-tracked with
-``common.multitarget_runner.track_frames`` (the code behind ``polartrack track`` with those filters)
+``common.multitarget.runner.track_frames`` (the code behind ``polartrack track`` with those filters)
 on the recorded source (the scene's length from the recorded ``total_frames``) and compared
 message by message; the CSV is then ``frame,target,part,x,y``.
 
@@ -27,7 +27,7 @@ def main(argv: list[str] | None = None) -> int:
     from common.msgs.convert import estimate_msg
     from common.record.retrack import compare_estimates
     from common.record.reader import read_recording
-    from common.runner import track_frames
+    from common.single_target.runner import track_frames
     from common.settings import TrackerSettings
     from common.sources import open_source
 
@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _multi(rec, csv_path: str | None) -> int:
     from common.msgs.convert import msg_positions, multi_estimate_msg
-    from common.multitarget_runner import MultiRun, track_frames
+    from common.multitarget.runner import MultiRun, track_frames
     from common.record.retrack import compare_multi
     from common.sources import open_source
 

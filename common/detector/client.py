@@ -1,6 +1,6 @@
 """The Tracker's detector client: everything of a tracking step that needs pixels and the template.
 
-:class:`common.runner.Tracker` keeps the bookkeeping (filter, stabiliser, scale, adaptation) and
+:class:`common.single_target.runner.Tracker` keeps the bookkeeping (filter, stabiliser, scale, adaptation) and
 asks a client for the matching:
 
 - ``build_template(frame, centre, box, k)``: the template on the first frame, at factor ``k``;

@@ -190,7 +190,7 @@ def info_homography(info: FrameInfo) -> np.ndarray | None:
 @dataclass(frozen=True)
 class InfoFrame:
     """A frame as the bus describes it (a FrameInfo), with its pixels only where they were taken
-    (a stabilising tracker): what :class:`common.runner.Tracker` steps on outside the process
+    (a stabilising tracker): what :class:`common.single_target.runner.Tracker` steps on outside the process
     that reads the source."""
 
     index: int
@@ -207,7 +207,7 @@ def info_frame(info: FrameInfo, image: np.ndarray | None = None) -> InfoFrame:
 def multi_estimate_msg(frame_index: int, state, run, capture_ns: int | None = None,
                        step_ms: float = 0.0) -> MultiEstimate:
     """The message of one frame's estimates (``state``: a :class:`common.multitarget.MultiTrackState`
-    of ``run``, a :class:`common.multitarget_runner.MultiRun`; no loss: float64 arrays as bytes)."""
+    of ``run``, a :class:`common.multitarget.runner.MultiRun`; no loss: float64 arrays as bytes)."""
     from common.multitarget.body import body_model
 
     body = body_model(run.config.n_parts)

@@ -158,7 +158,7 @@ def _decode(buf: bytes, pixels: bool) -> tuple[int | None, object, np.ndarray | 
             raise ValueError("compressed image without data")
         if not pixels:
             return index, msg, None
-        from common.imageio import decode_rgb
+        from common.sources.imageio import decode_rgb
 
         offset, length = data
         return index, msg, decode_rgb(memoryview(buf)[offset:offset + length])

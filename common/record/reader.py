@@ -6,7 +6,6 @@ is :mod:`common.record.retrack`.
 
 from __future__ import annotations
 
-import json
 import struct
 import zlib
 from collections import defaultdict
@@ -16,6 +15,7 @@ from typing import Iterable, Iterator
 
 from common.msgs import TOPICS
 from common.msgs.topics import topic_suffix
+from common.record.meta import run_metadata
 
 
 class RecordingError(ValueError):
@@ -258,17 +258,6 @@ class Recording:
     def stream(self, topics: Iterable[str]) -> Iterator[tuple[str, int, bytes]]:
         """The file read again for ``topics``, streamed (see :func:`stream_messages`)."""
         return stream_messages(self.path, topics, ReadReport())
-
-
-def run_metadata(raw: bytes) -> dict[str, str]:
-    """The MCAP ``run`` metadata of a RunConfig message (what the recorder writes)."""
-    from google.protobuf.json_format import MessageToDict
-
-    from common.msgs import RunConfig
-
-    cfg = RunConfig.FromString(raw)
-    d = MessageToDict(cfg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
-    return {k: v if isinstance(v, str) else json.dumps(v) for k, v in d.items()}
 
 
 def read_recording(path: str, warn=None, topics: Iterable[str] | None = None,

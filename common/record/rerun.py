@@ -506,18 +506,21 @@ class RunLogger:
                                                            labels=f"template v{msg.version}"))
 
     def run_config(self, msg: RunConfig) -> None:
-        try:
-            settings = json.dumps(json.loads(msg.settings_json), indent=2) if msg.settings_json else "{}"
-        except json.JSONDecodeError:
-            settings = msg.settings_json
+        from common.record.meta import run_metadata
+
+        meta = run_metadata(msg.SerializeToString())  # typed or (older runs) JSON text: the same
+
+        def pretty(text: str) -> str:
+            try:
+                return json.dumps(json.loads(text), indent=2)
+            except json.JSONDecodeError:
+                return text
+
+        settings = pretty(meta.get("settings_json") or "{}")
         text = (f"# Run {msg.run_id}\n\n* source: `{msg.source}`\n* seed: {msg.seed}\n* pace: {msg.pace}\n"
                 f"* init box: {list(msg.init_box)}\n\n```json\n{settings}\n```\n")
-        if msg.multi_json:
-            try:
-                multi = json.dumps(json.loads(msg.multi_json), indent=2)
-            except json.JSONDecodeError:
-                multi = msg.multi_json
-            text += f"\n## Multi-target run\n\n```json\n{multi}\n```\n"
+        if meta.get("multi_json"):
+            text += f"\n## Multi-target run\n\n```json\n{pretty(meta['multi_json'])}\n```\n"
         self.rec.log("run/config", rr.TextDocument(text, media_type="text/markdown"), static=True)
 
     def service_status(self, msg: ServiceStatus, capture_ns: int | None = None) -> None:

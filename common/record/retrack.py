@@ -153,13 +153,13 @@ def offline_retrack(path: str) -> dict:
     its estimates with the recorded ones. The frames' pixels are read only when stabilising, and
     then streamed (the other topics are read into memory: a few kB a frame)."""
     from common.detector.remote import QueryDetector
-    from common.runner import Tracker, stabilises
+    from common.single_target.runner import Tracker, stabilises
     from common.tracking.observation import ObservationUnavailable
 
     rec = read_recording(path, skip=("frame/image",))
     run = rec.run
     if run.get("multi_json"):
-        from common.multitarget_runner import MultiRun
+        from common.multitarget.runner import MultiRun
 
         try:
             multi = MultiRun.from_json(run["multi_json"])
@@ -223,11 +223,11 @@ def compare_multi(recorded: list[MultiEstimate], new: list[MultiEstimate]) -> di
 
 
 def offline_retrack_multi(rec: Recording, run) -> dict:
-    """Re-run a multi-target recording (``run``: its :class:`common.multitarget_runner.MultiRun`)
+    """Re-run a multi-target recording (``run``: its :class:`common.multitarget.runner.MultiRun`)
     from its recorded part-evidence replies (no detector, no pixels) and compare every estimate
     with the recorded one."""
     from common.msgs.convert import multi_estimate_msg
-    from common.multitarget_runner import MultiTracker
+    from common.multitarget.runner import MultiTracker
     from common.detector.remote import EvidenceUnavailable, QueryPartEvidence
 
     recorded = rec.decoded("track/multi_estimate")

@@ -128,7 +128,7 @@ class FolderSource(Source):
         return self.truth is not None
 
     def frame(self, i: int) -> Frame:
-        from common.imageio import ImageReadError, decode_rgb
+        from common.sources.imageio import ImageReadError, decode_rgb
 
         path = self.files[i]
         try:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Iterator
 
-from common.imageio import decode_rgb, encode_rgb
+from common.sources.imageio import decode_rgb, encode_rgb
 from common.sources.base import Frame, Source, SourceError
 
 FORMATS = ("auto", "raw", "png", "jpeg")

@@ -158,7 +158,7 @@ class TrackState:
     """Windowed ML only: (centre x, centre y, side) of this frame's search window, pixels."""
     size: tuple[float, float] | None = None
     """(w, h) of the target's box in image pixels, before the rotation by ``orientation``: the first
-    box's sides times the apparent scale (set by :class:`common.runner.Tracker`; None from a bare filter)."""
+    box's sides times the apparent scale (set by :class:`common.single_target.runner.Tracker`; None from a bare filter)."""
     reacquired: bool = False
     """Whether this frame's estimate comes from a re-acquisition (the filter re-locked on a detection)."""
 

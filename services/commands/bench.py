@@ -368,7 +368,7 @@ def measure_tracker(spec: str, seed: int = 0) -> dict:
     import cv2
     from threadpoolctl import threadpool_limits
 
-    from common.runner import Tracker
+    from common.single_target.runner import Tracker
     from common.settings import profile_for
     from common.sources import open_source
 

@@ -7,7 +7,7 @@ source's profile (``--set`` overrides); its box per frame is the axis-aligned bo
 oriented box. ``--peers`` adds OpenCV's CSRT, KCF and NanoTrack v2 from the same first box (rounded
 to whole pixels, as OpenCV takes it), run by tools/opencv_baselines.py in an isolated environment
 with opencv-contrib-python-headless (``uv run --isolated``: the product does not depend on it nor
-on NanoTrack's ONNX files). One scorer (common/benchmark.py) scores every tracker's boxes: over the
+on NanoTrack's ONNX files). One scorer (common/evaluation/benchmark.py) scores every tracker's boxes: over the
 frames where the target is visible (NaN ground truth left out, as OTB and UAV123 do),
 precision20, auc50 (precision over 0-50 px), success_auc (OTB: fraction of frames with IoU above
 0, 0.05, ..., 1.0, averaged; 20/21 at best), mean_err (px), frames_lost (frames whose box does
@@ -101,7 +101,7 @@ def peer_command(args) -> list[str]:
 def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float, dict | None]:
     """PolarTrack's axis-aligned box per frame (NaN rows where it has none), its seconds and its
     re-acquisition's statistics (None when off)."""
-    from common.runner import Tracker
+    from common.single_target.runner import Tracker
 
     tracker, boxes, elapsed = None, [], 0.0
     for frame in source:
@@ -150,10 +150,10 @@ def run_peers(prefix: list[str], spec: str, init, args, n_frames: int, bar) -> d
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from common.benchmark import as_boxes, mean_scores, score_boxes
-    from common.benchmark_plots import plot_curves, plot_errors_over_time
+    from common.evaluation.benchmark import as_boxes, mean_scores, score_boxes
+    from common.evaluation.plots import plot_curves, plot_errors_over_time
     from services.commands.errors import UsageError
-    from common.runner import InitError
+    from common.single_target.runner import InitError
     from common.sources import SourceError
 
     sequences = open_sequences(args)

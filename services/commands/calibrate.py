@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.calibration import calibrate, plot_calibration
+    from common.evaluation.calibration import calibrate, plot_calibration
     from services.commands.errors import UsageError
     from common.sources import SourceError, open_source
 

@@ -263,11 +263,11 @@ def single_box(args):
 
 
 def multi_run(args, source, seed: int, particles: int | None):
-    """The :class:`common.multitarget_runner.MultiRun` of the arguments, its boxes checked against the
+    """The :class:`common.multitarget.runner.MultiRun` of the arguments, its boxes checked against the
     first frame (UsageError otherwise)."""
     from services.commands.errors import UsageError
     from common.multitarget import InitError, MultiInit, body_model
-    from common.multitarget_runner import MultiRun
+    from common.multitarget.runner import MultiRun
     from common.sources import SourceError
 
     boxes = given_boxes(args)

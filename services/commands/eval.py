@@ -32,7 +32,7 @@ def evaluate(source, init, settings_by_name: dict, progress: bool = False) -> di
     """Run every filter in lockstep over ``source``; per-filter arrays and timings."""
     from tqdm import tqdm
 
-    from common.runner import Tracker
+    from common.single_target.runner import Tracker
 
     trackers: dict = {}
     est = {k: [] for k in settings_by_name}
@@ -93,7 +93,7 @@ def plot_errors(run: dict, errors: dict, path: Path, title: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from services.commands.errors import UsageError
     from common.evaluation import centre_errors, score_run
-    from common.runner import InitError
+    from common.single_target.runner import InitError
     from common.sources import SourceError
 
     names = [n.strip() for n in args.filter.split(",") if n.strip()]

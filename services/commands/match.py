@@ -12,7 +12,7 @@ import json
 
 import numpy as np
 
-from common.imageio import ImageReadError, read_rgb
+from common.sources.imageio import ImageReadError, read_rgb
 
 HELP = "score a point of an image against a template (polar matching)"
 

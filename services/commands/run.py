@@ -60,7 +60,7 @@ def execute(args: argparse.Namespace, source_spec: str, init, filter_name: str, 
             multi=None) -> int:
     """Run the pipeline; ``multi`` (a MultiRun) for the multi-target filters."""
     from services.commands.errors import UsageError
-    from common.runner import InitError, check_init_box
+    from common.single_target.runner import InitError, check_init_box
     from common.settings import profile_for
     from common.sources import SourceError, open_source
 

@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from services.commands.common_args import MULTI_METHODS
-    from common.runner import track_frames
+    from common.single_target.runner import track_frames
 
     if args.filter in MULTI_METHODS:
         return run_multi(args)
@@ -87,11 +87,11 @@ def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int
 
 
 def run_multi(args: argparse.Namespace) -> int:
-    """In-process multi-target tracking (:func:`common.multitarget_runner.track_frames`)."""
+    """In-process multi-target tracking (:func:`common.multitarget.runner.track_frames`)."""
     from services.commands.errors import UsageError
     from services.commands.common_args import multi_run, source_spec
     from common.multitarget import body_model
-    from common.multitarget_runner import track_frames as track_multi_frames
+    from common.multitarget.runner import track_frames as track_multi_frames
     from common.sources import SourceError, open_source
 
     try:

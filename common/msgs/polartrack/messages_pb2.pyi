@@ -1,3 +1,4 @@
+from google.protobuf import struct_pb2 as _struct_pb2
 from google.protobuf.internal import containers as _containers
 from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
 from google.protobuf import descriptor as _descriptor
@@ -289,26 +290,39 @@ class ParticleCloud(_message.Message):
     def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., count: _Optional[int] = ..., particles: _Optional[bytes] = ..., image_xy: _Optional[bytes] = ..., weights: _Optional[bytes] = ..., p_visible: _Optional[bytes] = ...) -> None: ...
 
 class RunConfig(_message.Message):
-    __slots__ = ("run_id", "source", "init_box", "settings_json", "seed", "versions_json", "start_ns", "pace", "multi_json")
+    __slots__ = ("run_id", "source", "init_box", "seed", "start_ns", "pace", "settings", "versions", "multi", "settings_json", "versions_json", "multi_json")
+    class VersionsEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: str
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[str] = ...) -> None: ...
     RUN_ID_FIELD_NUMBER: _ClassVar[int]
     SOURCE_FIELD_NUMBER: _ClassVar[int]
     INIT_BOX_FIELD_NUMBER: _ClassVar[int]
-    SETTINGS_JSON_FIELD_NUMBER: _ClassVar[int]
     SEED_FIELD_NUMBER: _ClassVar[int]
-    VERSIONS_JSON_FIELD_NUMBER: _ClassVar[int]
     START_NS_FIELD_NUMBER: _ClassVar[int]
     PACE_FIELD_NUMBER: _ClassVar[int]
+    SETTINGS_FIELD_NUMBER: _ClassVar[int]
+    VERSIONS_FIELD_NUMBER: _ClassVar[int]
+    MULTI_FIELD_NUMBER: _ClassVar[int]
+    SETTINGS_JSON_FIELD_NUMBER: _ClassVar[int]
+    VERSIONS_JSON_FIELD_NUMBER: _ClassVar[int]
     MULTI_JSON_FIELD_NUMBER: _ClassVar[int]
     run_id: str
     source: str
     init_box: _containers.RepeatedScalarFieldContainer[float]
-    settings_json: str
     seed: int
-    versions_json: str
     start_ns: int
     pace: str
+    settings: _struct_pb2.Struct
+    versions: _containers.ScalarMap[str, str]
+    multi: _struct_pb2.Struct
+    settings_json: str
+    versions_json: str
     multi_json: str
-    def __init__(self, run_id: _Optional[str] = ..., source: _Optional[str] = ..., init_box: _Optional[_Iterable[float]] = ..., settings_json: _Optional[str] = ..., seed: _Optional[int] = ..., versions_json: _Optional[str] = ..., start_ns: _Optional[int] = ..., pace: _Optional[str] = ..., multi_json: _Optional[str] = ...) -> None: ...
+    def __init__(self, run_id: _Optional[str] = ..., source: _Optional[str] = ..., init_box: _Optional[_Iterable[float]] = ..., seed: _Optional[int] = ..., start_ns: _Optional[int] = ..., pace: _Optional[str] = ..., settings: _Optional[_Union[_struct_pb2.Struct, _Mapping]] = ..., versions: _Optional[_Mapping[str, str]] = ..., multi: _Optional[_Union[_struct_pb2.Struct, _Mapping]] = ..., settings_json: _Optional[str] = ..., versions_json: _Optional[str] = ..., multi_json: _Optional[str] = ...) -> None: ...
 
 class ServiceStatus(_message.Message):
     __slots__ = ("service", "received", "published", "malformed", "dropped", "errors", "cpu_s", "final")

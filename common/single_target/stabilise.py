@@ -39,7 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 
 class StabiliserConfig(BaseModel):
-    """How the camera motion is estimated (see :mod:`common.stabilise`)."""
+    """How the camera motion is estimated (see :mod:`common.single_target.stabilise`)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 

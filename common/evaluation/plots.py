@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.benchmark import PRECISION_THRESHOLDS, SUCCESS_THRESHOLDS
+from common.evaluation.benchmark import PRECISION_THRESHOLDS, SUCCESS_THRESHOLDS
 
 
 def _pyplot():

@@ -17,15 +17,15 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from common.adaptation import TemplateAdapter
+from common.single_target.adaptation import TemplateAdapter
 from common.detector import Template
 from common.detector.client import DetectorClient, LocalDetector
 from common.detector.layout import SUPPORT_RADIUS_PX
-from common.reacquire import Detection, Reacquirer
-from common.scale import ScaleTracker
+from common.single_target.reacquire import Detection, Reacquirer
+from common.single_target.scale import ScaleTracker
 from common.settings import SYNTHETIC_BETA, TrackerSettings
 from common.sources import Frame
-from common.stabilise import CameraMotionEstimator
+from common.single_target.stabilise import CameraMotionEstimator
 from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world
 from common.tracking.motion import NearConstantVelocity
@@ -253,7 +253,7 @@ class Tracker:
         return state
 
     def _search(self, frame: Frame, h: np.ndarray | None) -> Detection | None:
-        """While the target is lost, search this frame (:mod:`common.reacquire`); on a confident
+        """While the target is lost, search this frame (:mod:`common.single_target.reacquire`); on a confident
         detection restart the filter there, at the detection's scale and angle."""
         r = self.reacquirer
         if r is None or not r.lost:

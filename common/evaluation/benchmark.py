@@ -15,7 +15,7 @@ target are left out of every score. Over the remaining ("visible") frames:
 - ``frames_lost``: frames whose box does not overlap the target at all (IoU = 0, no box included),
   the failure criterion of VOT: unlike a centre-error cut it scales with the target's size.
 
-Pure numpy; the plots are in :mod:`common.benchmark_plots`.
+Pure numpy; the plots are in :mod:`common.evaluation.plots`.
 """
 
 from __future__ import annotations
