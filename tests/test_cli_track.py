@@ -73,6 +73,12 @@ def test_eval_json(tmp_path, capsys):
     assert out["precision20"] == out["filters"]["rbpf"]["precision20"] == 1.0
     assert 0.8 < out["auc50"] <= 1.0 and out["mean_err"] < 3.0 and out["fps"] > 0
     assert (tmp_path / "errors.png").exists()
+    # the table says the same figures
+    assert main(["eval", "synthetic:2", "--frames", "30", "--filter", "rbpf,ml", "--no-progress",
+                 "--out-dir", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    rows = {line.split("│")[1].strip(): line for line in text.splitlines() if line.count("│") > 4}
+    assert f"{out['filters']['ml']['precision20']:.3f}" in rows["ml"] and f"{out['mean_err']:.2f}" in rows["rbpf"]
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -123,8 +123,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"{source.name}: {summary['frames']} frames, plot {plot}")
-        print(f"{'filter':<6} {'precision20':>11} {'auc50':>7} {'mean_err':>9} {'fps':>7}")
-        for n, r in results.items():
-            print(f"{n:<6} {r['precision20']:>11.3f} {r['auc50']:>7.3f} {r['mean_err']:>9.2f} {r['fps']:>7.1f}")
+        from services.commands.tables import print_table
+
+        print_table(f"{source.name}: {summary['frames']} frames, plot {plot}",
+                    ["filter", "precision20", "auc50", "mean_err", "fps"],
+                    [[n, f"{r['precision20']:.3f}", f"{r['auc50']:.3f}", f"{r['mean_err']:.2f}", f"{r['fps']:.1f}"]
+                     for n, r in results.items()])
     return 0

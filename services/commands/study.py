@@ -132,9 +132,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"{len(seeds)} seeds; plot {png}")
-        print(f"{'method':<11} {'recovered':>10} {'precision20':>12} {'median err':>11} {'ms/frame':>9}")
-        for n, r in table.items():
-            print(f"{n:<11} {r['recovered']:>4}/{r['seeds']:<5} {r['precision20']:>12.3f} {r['mean_err']:>11.2f} "
-                  f"{r['ms_per_frame']:>9.1f}")
+        from services.commands.tables import print_table
+
+        print_table(f"{len(seeds)} seeds; plot {png}", ["method", "recovered", "precision20", "median err", "ms/frame"],
+                    [[n, f"{r['recovered']}/{r['seeds']}", f"{r['precision20']:.3f}", f"{r['mean_err']:.2f}",
+                      f"{r['ms_per_frame']:.1f}"] for n, r in table.items()])
     return 0
