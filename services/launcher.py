@@ -64,6 +64,18 @@ def free_ports(n: int) -> list[int]:
     return ports
 
 
+def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> int | None:
+    """SIGTERM, then SIGKILL if it is still there after ``timeout`` s; its exit status."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    return proc.returncode
+
+
 def wait_for_port(port: int, proc: subprocess.Popen, timeout: float, log=lambda: "") -> None:
     """Wait until something listens on loopback ``port``; RuntimeError if ``proc`` exits first."""
     deadline = time.monotonic() + timeout
@@ -282,16 +294,7 @@ class Pipeline:
 
     def stop(self, service: str, timeout: float = 10.0) -> int | None:
         proc = self.procs.get(service)
-        if proc is None:
-            return None
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-        return proc.returncode
+        return None if proc is None else stop_process(proc, timeout)
 
     def pause_source(self) -> None:
         """Hold ingest before its next frame (SIGUSR1; :class:`services.ingest.Pause`), its bus

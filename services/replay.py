@@ -20,7 +20,7 @@ from common.validation import FrameOrder, Invalid, check_frame_info, decode
 from common.record.reader import ReadReport, RecordingError, read_recording, stream_messages, warn_read
 from common.record.retrack import compare_estimates
 from services.bus import BusConfig, Inbox, ns_attachment, open_session, payload_bytes, wait_for_alive, publisher
-from services.launcher import client_args, free_ports, router_config
+from services.launcher import client_args, free_ports, router_config, stop_process
 
 
 def republish(path: str, bus: BusConfig, speed: float | None = 1.0, warn=None, *, topics=None,
@@ -192,11 +192,6 @@ def retrack(path: str, timeout: float = 600.0, log_dir: str | None = None) -> di
         return out
     finally:
         for p in procs.values():
-            if p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            stop_process(p)
         session.close()
         tmp.cleanup()

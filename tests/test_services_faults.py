@@ -12,7 +12,7 @@ from common.msgs import FrameInfo, ScoreQuery, ScoreReply, ServiceStatus, pack
 from common.msgs.convert import image_to_msg
 from common.sources import open_source
 from services.bus import Inbox, ns_attachment, open_session, payload_bytes, publisher, wait_for_alive
-from services.launcher import client_args, free_ports, router_config
+from services.launcher import client_args, free_ports, router_config, stop_process
 
 pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
 
@@ -35,12 +35,7 @@ def bus_with(tmp_path):
         yield bus, session, start
     finally:
         for p in procs:
-            if p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            stop_process(p)
         session.close()
 
 

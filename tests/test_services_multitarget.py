@@ -22,7 +22,7 @@ from common.record.retrack import offline_retrack
 from common.record.reader import read_recording
 from common.sources import open_source
 from services.bus import Inbox, ns_attachment, open_session, payload_bytes, publisher, wait_for_alive
-from services.launcher import Pipeline, client_args, free_ports, router_config
+from services.launcher import Pipeline, client_args, free_ports, router_config, stop_process
 
 pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
 
@@ -182,13 +182,7 @@ def detector(tmp_path):
     try:
         yield bus, session, proc
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+        stop_process(proc)
         session.close()
         log.close()
 
