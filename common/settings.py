@@ -321,17 +321,20 @@ class RunSpec(BaseModel):
     source: str = Field(description="video file, image folder, camera:N or synthetic[:SEED], as the services see it")
     init_box: tuple[float, float, float, float] = Field(description="the target's box x, y, w, h in the first frame")
     fps: float | None = Field(None, gt=0, description="the source's frame rate (the profile converts the motion "
-                              "model to it); None: read from the source when a service starts")
+                              "model to it); unset: read from the source when a service starts")
     frames: int | None = Field(None, ge=1, description="only the first N frames")
     pace: Literal["consumer", "realtime", "max"] = Field(
         "consumer", description="consumer: each frame waits for the tracker (nothing dropped); realtime: at the "
         "source's frame rate, stale frames skipped; max: as fast as the source reads")
-    image_format: str = Field("auto", description="frames on the bus and in the recording (see ingest's image_format)")
+    image_format: str = Field("auto", description="frames on the bus and in the recording: auto (a JPEG/PNG file's own "
+                              "bytes; raw for the synthetic scenes; jpeg:90 for video and cameras), raw, png, jpeg "
+                              "or jpeg:QUALITY; run and track with the same format give the same estimates")
     filter: FilterName = Field("rbpf", description="rbpf (Pang), sir (Nelson) or ml (windowed search)")
     seed: int = Field(0, ge=0, description="seed of the filter's random generator")
-    particles: int | None = Field(None, ge=1, description="particles; None: the profile's")
+    particles: int | None = Field(None, ge=1, description="particles of the particle filters (rbpf, sir); unset: the "
+                                  "profile's")
     profile: str | None = Field(None, description="the settings profile (common.settings.PRESETS: synthetic or "
-                                "real); None: synthetic for the built-in scenes, real for the rest")
+                                "real, unset: synthetic for the built-in scenes, real for the rest")
     settings: dict = Field(default_factory=dict, description="tracker settings (common.settings.TrackerSettings, "
                            "nested tables) that replace the profile's")
 

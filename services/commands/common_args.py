@@ -63,23 +63,44 @@ def add_tracking_arguments(p: argparse.ArgumentParser, multi_filter: bool = Fals
                        help="filters to run side by side: rbpf, sir, ml (comma separated)")
     else:
         p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="tracking filter")
-    p.add_argument("--particles", type=positive_int, metavar="N", help="number of particles (rbpf, sir)")
-    add_profile_argument(p)
-    p.add_argument("--seed", type=seed_int, default=0, help="seed of the filter's random generator")
-    p.add_argument("--frames", type=positive_int, metavar="N", help="only the first N frames")
+    add_run_flags(p, "particles", "profile", "seed", "frames")
     p.add_argument("--ml-threshold", type=float, metavar="T", help="windowed ML detection threshold (default 0.6)")
+    add_overrides_argument(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+RUN_FLAGS = {
+    "particles": {"type": positive_int, "metavar": "N"},
+    "seed": {"type": seed_int, "default": 0},
+    "frames": {"type": positive_int, "metavar": "N"},
+    "pace": {"default": "consumer"},
+    "image_format": {"default": "auto", "metavar": "F"},
+    "profile": {},
+}
+"""The run's flags (``common.settings.RunSpec`` fields, their documentation the help) with what a
+command line adds to the field's type: the checks, the defaults shown, the metavars."""
+
+
+def add_run_flags(p: argparse.ArgumentParser, *names: str) -> None:
+    """The flags of the run's ``names`` (``--image-format`` for ``image_format``), generated from
+    :class:`common.settings.RunSpec` (one declaration for the CLI, the run file and compose)."""
+    from common.settings import PRESETS, RunSpec
+    from services.options import _flag_type
+
+    for name in names:
+        field = RunSpec.model_fields[name]
+        kw = dict(_flag_type(field.annotation) or {})
+        kw |= RUN_FLAGS[name]
+        if name == "profile":
+            kw["choices"] = sorted(PRESETS)
+        p.add_argument("--" + name.replace("_", "-"), dest=name, help=field.description, **kw)
+
+
+def add_overrides_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                    help="override a tracker setting by its dotted name (repeatable), e.g. --set stabilise=off "
                         "--set adaptation.enabled=false --set scale.mode=off --set scale.target_size_px=null; "
                         "VALUE is JSON (numbers, true/false, null) or else a string")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-
-
-def add_image_format_argument(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--image-format", default="auto", metavar="F",
-                   help="frames on the bus and in the recording: auto (a JPEG/PNG file's own bytes; raw for the "
-                   "synthetic scenes; jpeg:90 for video and cameras), raw, png, jpeg or jpeg:QUALITY; run and "
-                   "track with the same format give the same estimates")
 
 
 def published_source(source, spec: str):
@@ -116,13 +137,6 @@ def open_checked(args):
             raise UsageError(f"{args.source}: no ground truth for the first frame; give --init X,Y,W,H")
         init = first_truth.box
     return source, tuple(float(v) for v in init)
-
-
-def add_profile_argument(p) -> None:
-    from common.settings import PRESETS
-
-    p.add_argument("--profile", choices=sorted(PRESETS), help="the settings profile (default: synthetic for the "
-                   "built-in scenes, real for the rest; common.settings.PRESETS)")
 
 
 def settings_for(args, source, filter_name: str):

@@ -19,7 +19,7 @@ HELP = "write settings files: the run file compose tracks with, a service's keys
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from services.commands.common_args import add_profile_argument, box_arg
+    from services.commands.common_args import add_overrides_argument, add_run_flags, box_arg
 
     sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
     r = sub.add_parser("run", help="the run file (deploy/run.toml): source, first box, filter, settings")
@@ -28,15 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the target's box in the first frame (default: the source's first ground-truth box)")
     r.add_argument("--as", dest="as_path", metavar="PATH",
                    help="the source as the services see it (e.g. /data/clip.mp4 in compose), when not --source")
-    r.add_argument("--filter", choices=["rbpf", "sir", "ml"], default="rbpf")
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--particles", type=int, help="particles (default: the profile's)")
-    add_profile_argument(r)
-    r.add_argument("--frames", type=int, help="only the first N frames")
-    r.add_argument("--pace", choices=["consumer", "realtime", "max"], default="consumer")
-    r.add_argument("--image-format", dest="image_format", default="auto")
-    r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="a tracker setting replacing the profile's (dotted key, JSON value), repeatable")
+    r.add_argument("--filter", choices=["rbpf", "sir", "ml"], default="rbpf", help="tracking filter")
+    add_run_flags(r, "seed", "particles", "profile", "frames", "pace", "image_format")
+    add_overrides_argument(r)
     r.add_argument("--out", metavar="FILE.toml", help="write here (default: standard output)")
     d = sub.add_parser("dump", help="a service's keys with their defaults and documentation")
     d.add_argument("service", choices=["ingest", "detector", "tracker", "recorder", "viewer"])

@@ -19,27 +19,22 @@ import json
 from pathlib import Path
 import sys
 
-from services.commands.common_args import add_image_format_argument, apply_overrides, positive_int, seed_int
+from services.commands.common_args import add_overrides_argument, add_run_flags, apply_overrides
 
 HELP = "run the multi-process pipeline (ingest, detector, tracker, recorder, viewer)"
 
 
 def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     if not demo:
-        from services.commands.common_args import add_multi_arguments, add_profile_argument
+        from services.commands.common_args import add_multi_arguments
 
         p.add_argument("--source", required=True, metavar="SRC",
                        help="video file, UAV123-format folder, camera:N, synthetic[:SEED] or people[:SEED] "
                        "(the synthetic people scene, multi-target filters)")
         add_multi_arguments(p)
-        p.add_argument("--particles", type=positive_int, metavar="N", help="particles (rbpf, sir)")
-        add_profile_argument(p)
-        p.add_argument("--seed", type=seed_int, default=0, help="seed of the filter's generator")
-        p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-                       help="override a tracker setting by its dotted name (repeatable), as on track")
-    p.add_argument("--frames", type=positive_int, metavar="N", help="only the first N frames")
-    p.add_argument("--pace", choices=["consumer", "realtime", "max"], default="consumer",
-                   help="consumer: paced by the tracker, nothing dropped (default); realtime: source rate")
+        add_run_flags(p, "particles", "profile", "seed")
+        add_overrides_argument(p)
+    add_run_flags(p, "frames", "pace")
     p.add_argument("--no-viewer", action="store_true", help="do not write the Rerun file")
     p.add_argument("--out-dir", default="recordings", help="where the recordings go")
     p.add_argument("--max-size", type=float, metavar="MB", help="split the recording into files of about MB "
@@ -47,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     p.add_argument("--max-duration", type=float, metavar="S", help="split the recording every S seconds")
     p.add_argument("--compression", choices=["lz4", "zstd", "none"], help="the recording's chunk compression "
                    "(default lz4; none for the synthetic scenes, whose noise does not compress)")
-    add_image_format_argument(p)
+    add_run_flags(p, "image_format")
     p.add_argument("--rerun", nargs="+", metavar="MODE", help="live Rerun beside the .rrd (Rerun's examples' "
                    "modes): spawn (a viewer), connect [URL] (a running viewer or server; default "
                    f"{DEFAULT_RERUN_URL}), serve [PORT] (viewers connect to the run; default port 9876), "

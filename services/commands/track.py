@@ -18,7 +18,7 @@ import argparse
 import csv
 import sys
 
-from services.commands.common_args import (add_image_format_argument, add_tracking_arguments, open_checked,
+from services.commands.common_args import (add_run_flags, add_tracking_arguments, open_checked,
                                            point_estimate, published_source, settings_for)
 
 HELP = "track a target through a video, folder or the synthetic scene (CSV out)"
@@ -27,7 +27,7 @@ HELP = "track a target through a video, folder or the synthetic scene (CSV out)"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_tracking_arguments(p, multi_target=True)
     p.add_argument("--out", metavar="FILE.csv", help="write the CSV here (default: stdout)")
-    add_image_format_argument(p)
+    add_run_flags(p, "image_format")
 
 
 def run(args: argparse.Namespace) -> int:
