@@ -135,6 +135,20 @@ def test_recording_draws_the_track_in_foxglove(recorded_run):
         assert not math.isnan(box.points[0].x)
 
 
+def test_run_config_decodes_typed_from_the_recording_alone(recorded_run):
+    """A generic MCAP reader decodes run/config from the schema the file carries (struct.proto
+    included): the settings field by field, as the run used them."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    with open(recorded_run["result"].mcap, "rb") as fh:
+        (cfg,) = [dec for _s, _c, _m, dec in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+            topics=["run/config"])]
+    settings = recorded_run["settings"]
+    assert cfg.settings["filter"] == settings.filter and cfg.settings["rbpf"]["n_particles"] == settings.rbpf.n_particles
+    assert cfg.versions["numpy"] and not cfg.settings_json  # typed, not JSON text
+
+
 def test_multiprocess_equals_in_process(recorded_run):
     rec = read_recording(recorded_run["result"].mcap)
     ests = sorted(rec.decoded("track/estimate"), key=lambda e: e.frame_index)
