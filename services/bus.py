@@ -241,6 +241,74 @@ class StatusTicker:
         time.sleep(0.05)  # on their way before the session closes
 
 
+class ServiceShell:
+    """What every service does around its own work, in one place: its counters and its guard
+    (:func:`make_guard`), the Zenoh session, the subscriptions and queryables it declares, and,
+    once it is ready, its status and health publishers and its liveliness token (:meth:`alive`:
+    ingest and the launcher wait for the token). Leaving the ``with`` block undeclares the token
+    and everything declared, newest first, and closes the session, whatever happened inside.
+
+    ``open()`` joins the bus before the ``with`` block (the viewer: a bus that cannot be joined
+    leaves no empty file behind)."""
+
+    def __init__(self, bus: BusConfig, service: str, logger: logging.Logger, counters: "Counters | None" = None):
+        self.bus, self.service = bus, service
+        self.counters = counters if counters is not None else Counters(service)
+        self.guard = make_guard(bus, service, self.counters, logger)
+        self.session = None
+        self.status: StatusTicker | None = None
+        self._declared: list = []
+        self._token = None
+
+    def open(self) -> "ServiceShell":
+        if self.session is None:
+            self.session = open_session(self.bus)
+        return self
+
+    def __enter__(self) -> "ServiceShell":
+        return self.open()
+
+    def subscribe(self, key: str, handler, **kwargs):
+        sub = self.session.declare_subscriber(self.bus.key(key), handler, **kwargs)
+        self._declared.append(sub)
+        return sub
+
+    def queryable(self, key: str, handler, **kwargs):
+        q = self.session.declare_queryable(self.bus.key(key), handler, **kwargs)
+        self._declared.append(q)
+        return q
+
+    def publisher(self, key: str, **kwargs) -> "Publisher":
+        return publisher(self.session, self.bus.key(key), **kwargs)
+
+    def alive(self) -> StatusTicker:
+        """The service is ready: its status and health publishers, its liveliness token, and the
+        ticker that publishes its counters (``tick`` in the loop, ``final`` at the end)."""
+        pub_status = self.publisher(f"status/{self.service}")
+        pub_health = self.publisher(f"health/{self.service}")
+        self._token = self.session.liveliness().declare_token(self.bus.key(f"alive/{self.service}"))
+        self.status = StatusTicker(pub_status, self.counters, guard=self.guard, health_pub=pub_health)
+        return self.status
+
+    def undeclare(self, declared) -> None:
+        """Undeclare one subscription now (ingest stops listening once it paces by the clock)."""
+        if declared in self._declared:
+            self._declared.remove(declared)
+            declared.undeclare()
+
+    def __exit__(self, *exc) -> None:
+        try:
+            if self._token is not None:
+                self._token.undeclare()
+                self._token = None
+            while self._declared:
+                self._declared.pop().undeclare()
+        finally:
+            session, self.session = self.session, None
+            if session is not None:
+                session.close()
+
+
 class Stopper:
     """Set on SIGINT/SIGTERM/SIGHUP; services poll it between messages."""
 

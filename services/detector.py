@@ -25,8 +25,7 @@ from common.detector.server import PART_KINDS
 from common.detector.server import DetectorCore, DetectorSettings, warm_up
 from services import options
 from common.validation import MAX_CLIENT_CHARS, FrameOrder, Invalid, decode
-from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_sender, make_guard,
-                          ns_attachment, open_session, payload_bytes, publisher)
+from services.bus import (BusConfig, Counters, Inbox, ServiceShell, Stopper, attachment_sender, ns_attachment, payload_bytes)
 from services.frame_images import decode_image
 from services.shm_populate import SegmentPopulator
 
@@ -36,25 +35,20 @@ log = logging.getLogger("polartrack.detector")
 def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Counters:
     warm_up()
     core = DetectorCore(settings)
-    c = core.counters
-    guard = make_guard(bus, "detector", c, log)
+    shell = ServiceShell(bus, "detector", log, core.counters)
+    c, guard = shell.counters, shell.guard
     core.rejects = guard.rejects  # the core's malformed queries in the same table
     inbox = Inbox()
     capture_ns: OrderedDict[int, int] = OrderedDict()
     image_order = FrameOrder()
-    with open_session(bus) as session:
-        subs = [
-            session.declare_subscriber(bus.key("frame/image"), inbox.callback("image", maxlen=settings.max_frames)),
-            session.declare_subscriber(bus.key("template"), inbox.callback("template", maxlen=64)),
-        ]
-        queryable = session.declare_queryable(bus.key("detector/score"),
-                                              inbox.callback("query", maxlen=4 * settings.max_pending))
-        pub_query = publisher(session, bus.key("detector/query"))
-        pub_reply = publisher(session, bus.key("detector/reply"))
-        pub_template = publisher(session, bus.key("template"))
-        pub_status = publisher(session, bus.key("status/detector"))
-        pub_health = publisher(session, bus.key("health/detector"))
-        token = session.liveliness().declare_token(bus.key("alive/detector"))
+    with shell:
+        shell.subscribe("frame/image", inbox.callback("image", maxlen=settings.max_frames))
+        shell.subscribe("template", inbox.callback("template", maxlen=64))
+        shell.queryable("detector/score", inbox.callback("query", maxlen=4 * settings.max_pending))
+        pub_query = shell.publisher("detector/query")
+        pub_reply = shell.publisher("detector/reply")
+        pub_template = shell.publisher("template")
+        status = shell.alive()
         log.info("detector up on %s", bus.key("detector/score"))
 
         segments = SegmentPopulator()
@@ -147,7 +141,6 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
         pending: list[tuple] = []
         """Queries waiting for their frame's image or template, in arrival order: they never hold up
         the others (a query for an unknown frame had held the detector for a second)."""
-        status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
         while not stopper.stopped:
             inbox.wait(0.2 if not pending else 0.002)
             drain_images()
@@ -183,10 +176,6 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
             answer(item)
         c.values["dropped"] = inbox.dropped["image"]
         status.final()
-        token.undeclare()
-        for s in subs:
-            s.undeclare()
-        queryable.undeclare()
     return c
 
 

@@ -25,8 +25,8 @@ from common.sources import PrerenderedSource, SourceError, open_source
 from common.sources.published import parse_image_format, published_image
 from services import options
 from common.validation import check_estimate, check_multi_estimate
-from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_sender, make_guard, ns_attachment,
-                          open_session, payload_bytes, publisher, wait_for_alive)
+from services.bus import (BusConfig, Counters, Inbox, ServiceShell, Stopper, attachment_sender, ns_attachment,
+                          payload_bytes, wait_for_alive)
 from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.ingest")
@@ -141,8 +141,8 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
     from common.msgs import RunConfig
 
     pause = Pause()  # before anything: a pause signal never finds the default action (exit)
-    c = Counters("ingest")
-    guard = make_guard(bus, "ingest", c, log)
+    shell = ServiceShell(bus, "ingest", log)
+    c = shell.counters
     source = open_source(cfg.source, n_frames=cfg.frames)
     if cfg.prerender:
         t0 = time.monotonic()
@@ -150,14 +150,13 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         log.info("prerendered %d frames in %.1f s", len(source), time.monotonic() - t0)
     total = 0 if source.live else len(source)
     inbox = Inbox()
-    with open_session(bus) as session:
-        pub_image = publisher(session, bus.key("frame/image"))
-        pub_info = publisher(session, bus.key("frame/info"))
-        pub_status = publisher(session, bus.key("status/ingest"))
-        pub_health = publisher(session, bus.key("health/ingest"))
-        sub = session.declare_subscriber(bus.key("track/estimate"), inbox.callback("estimate", maxlen=4096))
-        sub_multi = session.declare_subscriber(bus.key("track/multi_estimate"), inbox.callback("multi", maxlen=4096))
-        token = session.liveliness().declare_token(bus.key("alive/ingest"))
+    with shell:
+        session, guard = shell.session, shell.guard
+        pub_image = shell.publisher("frame/image")
+        pub_info = shell.publisher("frame/info")
+        sub = shell.subscribe("track/estimate", inbox.callback("estimate", maxlen=4096))
+        sub_multi = shell.subscribe("track/multi_estimate", inbox.callback("multi", maxlen=4096))
+        status = shell.alive()
         if cfg.wait_for and not wait_for_alive(session, bus, cfg.wait_for, cfg.wait_timeout_s, stopper):
             log.error("services %s not up after %.0f s", cfg.wait_for, cfg.wait_timeout_s)
             c.add("errors")
@@ -165,13 +164,12 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         if cfg.run_config:
             rc = Parse(cfg.run_config, RunConfig())
             rc.start_ns = start_ns
-            publisher(session, bus.key("run/config")).put(rc.SerializeToString(), attachment=ns_attachment(start_ns))
+            shell.publisher("run/config").put(rc.SerializeToString(), attachment=ns_attachment(start_ns))
         done = -1  # highest frame index estimated
         clock = Clock()  # the real-time clock starts at the first frame
         last_ns = start_ns
         index = -1
         last_published = -1  # the newest frame out: no estimate can be about a later one
-        status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
         first = True
         segments = SegmentPopulator(write=True)
         listening = True
@@ -182,8 +180,8 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             soak), and what they held with them."""
             nonlocal listening
             if listening:
-                sub.undeclare()
-                sub_multi.undeclare()
+                shell.undeclare(sub)
+                shell.undeclare(sub_multi)
                 for box in inbox.boxes.values():
                     box.clear()
                 listening = False
@@ -262,8 +260,6 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         status.final(attachment=ns_attachment(last_ns))
         log.info("published %d frames", c["published"])
         time.sleep(0.1)
-        token.undeclare()
-        stop_listening()
     return c
 
 

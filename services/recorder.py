@@ -28,8 +28,7 @@ from common.msgs import TOPICS, Estimate, FrameInfo, MultiEstimate, ParticleClou
 from common.msgs.annotations import TrackDrawing
 from common.record.order import LogTimeOrder
 from common.validation import FrameOrder, Invalid, check_estimate, check_frame_info, check_image_size, check_status, decode, max_bytes
-from services.bus import (BusConfig, Counters, Inbox, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
-                          ns_attachment, open_session, payload_bytes, publisher)
+from services.bus import (BusConfig, Counters, Inbox, ServiceShell, Stopper, attachment_ns, attachment_sender, ns_attachment, payload_bytes)
 from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.recorder")
@@ -104,8 +103,8 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
     and reason and dropped); every message but the frame images is decoded and checked first.
     On a full disk (ENOSPC) it stops: the file is cut back to its last flush and
     :class:`DiskFull` is raised."""
-    c = Counters("recorder")
-    guard = make_guard(bus, "recorder", c, log)
+    shell = ServiceShell(bus, "recorder", log)
+    c, guard = shell.counters, shell.guard
     inbox = Inbox()
     sink = SplitSink(cfg.out, cfg.compression, cfg.chunk_size, cfg.simulate_disk_bytes,
                      None if cfg.max_size_mb is None else int(cfg.max_size_mb * 1e6),
@@ -115,14 +114,11 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
     info_order, image_order = FrameOrder(), FrameOrder()
     order = LogTimeOrder(int(cfg.reorder_s * 1e9))
     full: list[str] = []
-    with open_session(bus) as session:
-        sub = session.declare_subscriber(bus.key("**"), inbox.callback("all"))
-        pub_status = publisher(session, bus.key("status/recorder"))
-        pub_drawing = publisher(session, bus.key("track/annotations"), remote_only=True)
-        pub_health = publisher(session, bus.key("health/recorder"))
-        token = session.liveliness().declare_token(bus.key("alive/recorder"))
+    with shell:
+        shell.subscribe("**", inbox.callback("all"))
+        pub_drawing = shell.publisher("track/annotations", remote_only=True)
+        status = shell.alive()
         log.info("recording %s** to %s", prefix, cfg.out)
-        status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
 
         def valid(topic: str, data: bytes, sender: str) -> bool:
             if topic.startswith("health/"):
@@ -243,8 +239,6 @@ def serve(bus: BusConfig, cfg: RecorderSettings, stopper: Stopper) -> Counters:
         if full:
             c.add("errors")
         status.final()
-        token.undeclare()
-        sub.undeclare()
     if not full:
         on_disk(sink.close, "closing", cfg.out, full)
     if full:

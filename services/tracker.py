@@ -39,8 +39,8 @@ from common.single_target.runner import InitError, Tracker, stabilises
 from common.settings import TrackerSettings
 from common.tracking.observation import ObservationUnavailable
 from services import options
-from services.bus import (BusConfig, Counters, Inbox, Presence, StatusTicker, Stopper, make_guard, ns_attachment,
-                          open_session, publisher, query_options)
+from services.bus import (BusConfig, Counters, Inbox, Presence, ServiceShell, Stopper, ns_attachment,
+                          publisher, query_options)
 from services.frame_infos import InfoQueue, ReplyPicker
 from services.frame_images import FrameImages
 
@@ -96,7 +96,7 @@ def warm_up() -> None:
 class SingleTarget:
     """The single-target mode: :class:`common.single_target.runner.Tracker` with a detector client over queries."""
 
-    def __init__(self, cfg: TrackerServiceSettings, shell: "Shell"):
+    def __init__(self, cfg: TrackerServiceSettings, shell: "DetectorLink"):
         if cfg.init_box is None:
             raise ValueError("the tracker needs init_box (single target) or multi (multi-target)")
         warm_up()
@@ -163,7 +163,7 @@ class SingleTarget:
 class MultiTarget:
     """The multi-target mode: :class:`common.multitarget.runner.MultiTracker`, its colour evidence over queries."""
 
-    def __init__(self, cfg: TrackerServiceSettings, shell: "Shell"):
+    def __init__(self, cfg: TrackerServiceSettings, shell: "DetectorLink"):
         from common.multitarget.runner import MultiRun
 
         self.cfg, self.shell = cfg, shell
@@ -208,9 +208,10 @@ class MultiTarget:
         pass
 
 
-class Shell:
+class DetectorLink:
     """What both modes share on the bus: the session, the detector querier and its presence, the
-    template kept for a detector that lost it, the counters and the message guard."""
+    template kept for a detector that lost it, the counters and the message guard (the service's
+    own start and teardown: :class:`services.bus.ServiceShell`)."""
 
     def __init__(self, session, bus: BusConfig, cfg: TrackerServiceSettings, c: Counters, guard):
         self.session, self.bus, self.cfg, self.c, self.guard = session, bus, cfg, c, guard
@@ -246,23 +247,19 @@ class Shell:
 
 def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Counters:
     """Track every frame info until the end of stream or ``stopper``, in the mode ``cfg`` sets."""
-    c = Counters("tracker")
-    guard = make_guard(bus, "tracker", c, log)
+    service = ServiceShell(bus, "tracker", log)
+    c, guard = service.counters, service.guard
     inbox = Inbox()
-    with open_session(bus) as session:
-        sub = session.declare_subscriber(bus.key("frame/info"), inbox.callback("info"))
+    with service:
+        service.subscribe("frame/info", inbox.callback("info"))
         infos = InfoQueue(inbox, cfg.skip_stale, cfg.lag_frames(), c, log, guard)
-        shell = Shell(session, bus, cfg, c, guard)
+        shell = DetectorLink(service.session, bus, cfg, c, guard)
         mode = None
-        token = None
         try:
             mode = (MultiTarget if cfg.multi else SingleTarget)(cfg, shell)
-            pub_status = publisher(session, bus.key("status/tracker"))
-            pub_health = publisher(session, bus.key("health/tracker"))
-            token = session.liveliness().declare_token(bus.key("alive/tracker"))
+            status = service.alive()
             if not shell.presence.wait("detector", cfg.detector_wait_s, stopper):
                 log.warning("no detector on the bus after %.0f s", cfg.detector_wait_s)
-            status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
             skipped = 0
             while not stopper.stopped:
                 info, n_skipped = infos.next(stopper)
@@ -289,9 +286,6 @@ def serve(bus: BusConfig, cfg: TrackerServiceSettings, stopper: Stopper) -> Coun
             if mode is not None:
                 mode.close()
             shell.presence.close()
-            if token is not None:
-                token.undeclare()
-            sub.undeclare()
     return c
 
 

@@ -23,8 +23,7 @@ from services import options
 from common.msgs import FrameInfo
 from common.record import split_path
 from common.validation import FrameOrder, Invalid, check_frame_info, decode
-from services.bus import (BusConfig, Counters, StatusTicker, Stopper, attachment_ns, attachment_sender, make_guard,
-                          ns_attachment, open_session, payload_bytes, publisher)
+from services.bus import (BusConfig, ServiceShell, Stopper, attachment_ns, attachment_sender, ns_attachment, payload_bytes)
 
 log = logging.getLogger("polartrack.viewer")
 
@@ -91,13 +90,13 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
     tracker then skipped 40 frames)."""
     from common.record.rerun import RunLogger, display_available
 
-    c = Counters("viewer")
-    guard = make_guard(bus, "viewer", c, log)
+    shell = ServiceShell(bus, "viewer", log)
+    c, guard = shell.counters, shell.guard
     info_order = FrameOrder()
     spawn = cfg.spawn and display_available()
     if cfg.spawn and not spawn:
         log.warning("--spawn: no display available; writing %s only", cfg.out)
-    session = open_session(bus)  # before the file: a bus that cannot be joined leaves no empty .rrd
+    shell.open()  # before the file: a bus that cannot be joined leaves no empty .rrd
     options.lower_priority(nice)  # after Zenoh's threads started, before Rerun's
     logger = RunLogger.to_file(cfg.out, spawn=spawn, connect=cfg.rerun_connect, serve_port=cfg.rerun_serve_port,
                                jpeg_quality=cfg.jpeg_quality, track_length=cfg.track_length)
@@ -107,18 +106,15 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
     eos_at: float | None = None
     rotate = cfg.rotate_frames > 0 and not (spawn or cfg.rerun_connect or cfg.rerun_serve_port)
     try:
-        with session:
-            subs = [(topic, burst, session.declare_subscriber(bus.key(topic), handler(topic, cap)))
+        with shell:
+            subs = [(topic, burst, shell.subscribe(topic, handler(topic, cap)))
                     for topic, (cap, burst) in SUBSCRIPTIONS.items()]
-            pub_status = publisher(session, bus.key("status/viewer"))
-            pub_health = publisher(session, bus.key("health/viewer"))
-            token = session.liveliness().declare_token(bus.key("alive/viewer"))
+            status = shell.alive()
             log.info("logging polartrack/%s/** to %s", bus.stream, cfg.out)
             last_msg = time.monotonic()
             last_ns = None
             last_image_ns = None
             image_interval_ns = int(1e9 / cfg.max_image_hz) if cfg.max_image_hz > 0 else 0
-            status = StatusTicker(pub_status, c, guard=guard, health_pub=pub_health)
             while not stopper.stopped:
                 got = 0
                 for sub_topic, burst, sub in subs:
@@ -173,9 +169,6 @@ def serve(bus: BusConfig, cfg: ViewerSettings, stopper: Stopper, nice: int = 0) 
                 else:
                     stopper.wait(0.005)
             status.final(**({"attachment": ns_attachment(last_ns)} if last_ns is not None else {}))
-            token.undeclare()
-            for _topic, _burst, sub in subs:
-                sub.undeclare()
     finally:
         logger.close()
     stats = dict(logger.stats)

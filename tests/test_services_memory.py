@@ -83,10 +83,12 @@ def test_ingest_keeps_no_estimates_it_does_not_read(monkeypatch):
             super().__init__()
             inboxes.append(self)
 
-    real_publisher = ingest.publisher
+    import services.bus as bus_module
 
-    def watched_publisher(session, key):
-        pub = real_publisher(session, key)
+    real_publisher = bus_module.publisher  # what ServiceShell.publisher calls
+
+    def watched_publisher(session, key, **kwargs):
+        pub = real_publisher(session, key, **kwargs)
         if key.endswith("/frame/info"):
             put = pub.put
 
@@ -102,7 +104,7 @@ def test_ingest_keeps_no_estimates_it_does_not_read(monkeypatch):
         return pub
 
     monkeypatch.setattr(ingest, "Inbox", Watched)
-    monkeypatch.setattr(ingest, "publisher", watched_publisher)
+    monkeypatch.setattr(bus_module, "publisher", watched_publisher)
     bus = BusConfig(stream="mem", listen=[f"tcp/127.0.0.1:{port}"])
     cfg = ingest.IngestSettings(source="synthetic:0", frames=24, pace="max")
     stop = threading.Event()

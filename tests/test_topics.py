@@ -20,6 +20,9 @@ ROLES = {  # how a service file uses a key -> the role the graph must give that 
     rf"declare_querier\({KEY}": "subscribers",
     rf"FrameImages\(\s*[\w.]+,\s*{KEY}": "subscribers",
     rf"declare_token\({KEY}": "publishers",
+    r'\.subscribe\("([^"]*)"': "subscribers",  # services.bus.ServiceShell
+    r'\.queryable\("([^"]*)"': "publishers",
+    r'\.publisher\("([^"]*)"': "publishers",
 }
 
 
@@ -44,8 +47,11 @@ def misdeclared(service: str, text: str) -> list[str]:
 @pytest.mark.parametrize("service", [*SERVICES, "launcher"])
 def test_every_key_a_service_uses_is_declared_with_its_role(service):
     text = (ROOT / "services" / f"{service}.py").read_text()
-    assert uses(text) or service == "router" or service == "launcher"
+    assert uses(text) or ".alive()" in text or service in ("router", "launcher")
     assert misdeclared(service, text) == []
+    if "shell.alive()" in text or "service.alive()" in text:  # ServiceShell.alive: its status, health and token
+        for key in ("status/<service>", "health/<service>", "alive/<service>"):
+            assert service in topic(key.replace("<service>", service)).publishers
 
 
 def test_the_viewer_listens_to_what_the_graph_says():
@@ -64,6 +70,10 @@ def test_a_key_used_but_not_declared_or_in_the_wrong_role_is_found():
     assert misdeclared("detector", text) == ["detector: track/secret is not declared",
                                              "detector: subscriber of frame/info, the graph says "
                                              "('tracker', 'recorder', 'viewer', 'launcher')"]
+    shell_text = 'shell.subscribe("run/config", cb)\nshell.publisher("frame/image")\n'
+    assert misdeclared("tracker", shell_text) == [
+        "tracker: subscriber of run/config, the graph says ('recorder', 'viewer')",
+        "tracker: publisher of frame/image, the graph says ('ingest',)"]
 
 
 def test_the_tables_derived_from_the_graph():
