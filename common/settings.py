@@ -15,6 +15,8 @@ from common.tracking import RBPFConfig, SIRConfig, WindowedMLConfig
 from common.tracking.motion import NearConstantVelocity
 
 FilterName = Literal["rbpf", "sir", "ml"]
+ProfileName = Literal["synthetic", "real"]
+"""The named profiles (:data:`PRESETS`)."""
 
 
 class TemplateAdaptation(BaseModel):
@@ -207,7 +209,7 @@ REAL_INIT_VEL_LENGTHS = round(10.0 / CAR_LENGTH_M, 1)
 10 m/s (2.2 lengths/s) at 1 sigma; the first box says where the target is, not how it moves."""
 
 
-PRESETS: dict[str, dict] = {
+PRESETS: dict[ProfileName, dict] = {
     # The synthetic scene: Pang's model at the scene's frame rate, with this detector's own
     # likelihood (SYNTHETIC_BETA) instead of Pang's fit to his detector.
     "synthetic": {"rbpf": {"likelihood": {"kind": "beta_ratio", **SYNTHETIC_BETA}}},
@@ -333,8 +335,8 @@ class RunSpec(BaseModel):
     seed: int = Field(0, ge=0, description="seed of the filter's random generator")
     particles: int | None = Field(None, ge=1, description="particles of the particle filters (rbpf, sir); unset: the "
                                   "profile's")
-    profile: str | None = Field(None, description="the settings profile (common.settings.PRESETS: synthetic or "
-                                "real, unset: synthetic for the built-in scenes, real for the rest")
+    profile: ProfileName | None = Field(None, description="the settings profile (common.settings.PRESETS); unset: "
+                                        "synthetic for the built-in scenes, real for the rest")
     settings: dict = Field(default_factory=dict, description="tracker settings (common.settings.TrackerSettings, "
                            "nested tables) that replace the profile's")
 

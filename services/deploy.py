@@ -13,7 +13,6 @@ The compose deployment's own values are declared once, in :data:`DEPLOYMENT`;
 from __future__ import annotations
 
 import textwrap
-from pathlib import Path
 from typing import Any
 
 import tomlkit
@@ -61,14 +60,12 @@ def _comment(container, text: str | None) -> None:
         container.add(tomlkit.comment(line))
 
 
-def _submodel(model: type[BaseModel] | None, key: str) -> type[BaseModel] | None:
-    """The model documenting the table ``key`` of ``model`` (a nested model, or one named in
-    :data:`TABLE_MODELS`), or None."""
-    if model is None:
-        return None
-    if (model, key) in TABLE_MODELS:
-        return TABLE_MODELS[(model, key)]()
-    field = model.model_fields.get(key)
+def _submodel(model: type[BaseModel] | None, key: str, table_models: dict | None) -> type[BaseModel] | None:
+    """The model documenting the table ``key`` of ``model``: the one ``table_models`` names for it,
+    or the field's own model type; None when neither."""
+    if table_models and key in table_models:
+        return table_models[key]
+    field = model.model_fields.get(key) if model is not None else None
     ann = getattr(field, "annotation", None)
     for cand in (ann, *getattr(ann, "__args__", ())):
         if isinstance(cand, type) and issubclass(cand, BaseModel):
@@ -76,57 +73,45 @@ def _submodel(model: type[BaseModel] | None, key: str) -> type[BaseModel] | None
     return None
 
 
-def _fill(container, model: type[BaseModel] | None, values: dict, document: bool) -> None:
-    """Keys first, then tables (TOML's order), each after its documentation."""
+def _fill(container, model: type[BaseModel] | None, values: dict, table_models: dict | None = None) -> None:
+    """Keys first, then tables (TOML's order), each after its documentation; ``table_models`` names
+    the model that documents a top-level table whose field is a plain dict (or the bus's)."""
     fields = model.model_fields if model is not None else {}
     scalars = {k: v for k, v in values.items() if not isinstance(v, dict)}
     tables = {k: v for k, v in values.items() if isinstance(v, dict)}
     for key, value in scalars.items():
-        if document and key in fields:
+        if key in fields:
             _comment(container, fields[key].description)
         if value is None:  # TOML has no null: say it is unset (read back, the key gets its default)
             default = fields[key].get_default(call_default_factory=True) if key in fields else None
             if default is not None:
                 raise ValueError(f"{key} = None cannot be written in TOML (read back, it would be {default!r})")
-            if document:
-                container.add(tomlkit.comment(f"{key}: unset"))
+            container.add(tomlkit.comment(f"{key}: unset"))
             continue
         container.add(key, list(value) if isinstance(value, tuple) else value)
     for key, value in tables.items():
         table = tomlkit.table()
-        sub = _submodel(model, key)
-        if document and key in fields:
+        if key in fields:
             _comment(table, fields[key].description)
-        _fill(table, sub, value, document)
+        _fill(table, _submodel(model, key, table_models), value)
         container.add(key, table)
 
 
-def _tracker_settings():
-    from common.settings import TrackerSettings
-
-    return TrackerSettings
-
-
-TABLE_MODELS: dict[tuple[type, str], Any] = {}
-"""Tables whose keys are documented by a model other than the field's own type (the run file's
-``settings``: a plain table of TrackerSettings' fields)."""
-
-
-def document(header: str, model: type[BaseModel] | None, values: dict, docs: bool = True) -> str:
+def document(header: str, model: type[BaseModel], values: dict, table_models: dict | None = None) -> str:
+    """``values`` as TOML under the comment ``header``, each key after its field's description."""
     doc = tomlkit.document()
     for line in header.strip().splitlines():
         doc.add(tomlkit.comment(line))
     doc.add(tomlkit.nl())
-    _fill(doc, model, values, docs)
+    _fill(doc, model, values, table_models)
     return tomlkit.dumps(doc)
 
 
 def run_file(spec, command: str) -> str:
     """The run file of ``spec`` (a :class:`common.settings.RunSpec`): its keys that are set,
     each documented, and the settings overrides as a ``[settings]`` table; ``command`` wrote it."""
-    from common.settings import RunSpec
+    from common.settings import RunSpec, TrackerSettings
 
-    TABLE_MODELS.setdefault((RunSpec, "settings"), _tracker_settings)
     values = spec.model_dump(exclude_none=True)
     if not values.get("settings"):
         values.pop("settings", None)
@@ -137,7 +122,7 @@ def run_file(spec, command: str) -> str:
         "real-footage one at fps); replace any of them in a [settings] table, e.g.\n"
         "  [settings.scale]\n"
         "  mode = \"search\"")
-    return document(header, RunSpec, values)
+    return document(header, RunSpec, values, {"settings": TrackerSettings})
 
 
 def bus_values(service: str) -> dict:
@@ -174,8 +159,7 @@ def service_file(service: str, deploy: bool) -> str:
                   + (", ".join(k for k, f in model.model_fields.items() if f.is_required()) or "none")
                   + ("\nsettings (the filter's, common.settings.TrackerSettings): the source's profile, with a run file's "
                      "[settings]\non top (uv run polartrack config run --help)" if service == "tracker" else ""))
-    TABLE_MODELS[(model, "bus")] = lambda: BusConfig
-    return document(header, model, values)
+    return document(header, model, values, {"bus": BusConfig})
 
 
 def deploy_files(run_spec) -> dict[str, str]:
@@ -192,12 +176,3 @@ def compose_run_spec():
 
     source = open_source("synthetic:0")
     return RunSpec(source="synthetic:0", init_box=source.frame(0).truth.box, fps=source.fps)
-
-
-def write_deploy(folder: Path) -> list[Path]:
-    written = []
-    for name, text in deploy_files(compose_run_spec()).items():
-        path = folder / name
-        path.write_text(text)
-        written.append(path)
-    return written

@@ -50,7 +50,7 @@ def lower_priority(nice: int) -> None:
         os.nice(nice)
 
 
-def _flag_type(annotation):
+def flag_type(annotation):
     """argparse keywords for a settings field's type; None for a field that only a config file
     sets (nested models, tables)."""
     import types
@@ -60,7 +60,7 @@ def _flag_type(annotation):
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):
         if len(args) != 1:
             return None
-        return _flag_type(args[0])
+        return flag_type(args[0])
     origin = typing.get_origin(annotation)
     if origin is typing.Literal:
         return {"choices": list(args)}
@@ -89,7 +89,7 @@ def add_model_flags(p: argparse.ArgumentParser, model: type[BaseModel], skip: tu
     nested ones (tables) only in ``--config``. Returns the keys, for :func:`load`."""
     keys = []
     for name, field in model.model_fields.items():
-        kw = None if name in skip else _flag_type(field.annotation)
+        kw = None if name in skip else flag_type(field.annotation)
         if kw is None:
             continue
         p.add_argument("--" + name.replace("_", "-"), dest=name, default=None, help=field.description, **kw)

@@ -62,7 +62,11 @@ def test_the_profiles_are_named_presets(tmp_path):
     """The real-footage profile is data (common.settings.PRESETS), chosen by the source or by name
     (``--profile``); a preset is the same settings as the overrides it lists over Pang's model at
     the frame rate."""
-    from common.settings import PRESETS, profile_for, rate_adjusted_settings, with_overrides
+    import typing
+
+    from common.settings import PRESETS, ProfileName, profile_for, rate_adjusted_settings, with_overrides
+
+    assert set(typing.get_args(ProfileName)) == set(PRESETS)  # the flag's choices are the presets
 
     src = open_source("synthetic:0", n_frames=2)
     real = profile_for(src, preset="real")

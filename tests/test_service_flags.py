@@ -15,7 +15,7 @@ def test_every_simple_field_is_a_flag(service):
     model = model_class(service)
     p = argparse.ArgumentParser()
     keys = options.add_model_flags(p, model)
-    tables = {n for n, f in model.model_fields.items() if options._flag_type(f.annotation) is None}
+    tables = {n for n, f in model.model_fields.items() if options.flag_type(f.annotation) is None}
     assert set(keys) == set(model.model_fields) - tables
     assert tables <= {"settings"}  # only the tracker's filter settings are a table (config file, run file)
     help_text = p.format_help()

@@ -127,8 +127,8 @@ def table() -> str:
         name = t.message.DESCRIPTOR.full_name if t.message is not None else ("token" if t.kind == "liveliness" else "JSON")
         if t.kind == "query":
             name = f"{name} -> {ScoreReply.DESCRIPTOR.full_name}"
-        pubs = "each service" if t.publishers == SERVICES else ", ".join(t.publishers)
-        pubs = "each service but the router" if t.publishers == SERVICES[:-1] else pubs
+        pubs = {SERVICES: "each service", SERVICES[:-1]: "each service but the router"}.get(
+            t.publishers, ", ".join(t.publishers))
         verb = " (answers)" if t.kind == "query" else ""
         rows.append(f"| `{t.key}` | {name} | {pubs}{verb} | {', '.join(t.subscribers) or '(Foxglove)'}"
                     f"{' (asks)' if t.kind == 'query' else ''} | {'yes' if t.recorded else 'no'} | {t.what} |")

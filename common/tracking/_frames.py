@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import resampling
+from .camera import world_to_image
+from .observation import inside_image_log_prior
+from .state import InitialState, filter_state
+
 
 def make_rng(seed: int | np.random.SeedSequence | np.random.Generator) -> np.random.Generator:
     """The tracker's own generator: a Generator is used as given (its state is then shared with the
@@ -57,8 +62,6 @@ class ParticleFilter:
         """Start on the centre of an image box of the first frame (through its homography). The
         prior's time defaults to None, so the first ``step`` (normally on that same frame) does
         not predict."""
-        from .state import InitialState
-
         initial = InitialState.from_image_box(box_xyxy, first_observation.homography, **initial_kwargs)
         return cls(config, initial, seed)
 
@@ -68,15 +71,11 @@ class ParticleFilter:
 
     @property
     def weights(self) -> np.ndarray:
-        from . import resampling
-
         return resampling.weights_from_log(self.log_w)
 
     def _advance(self, frame_time: float, observation) -> tuple[float, np.ndarray]:
         """Move to ``frame_time``: predict over the elapsed T (none on a first step), take the
         observation's homography; returns T and the particles' image positions."""
-        from .camera import world_to_image
-
         dt = self.clock.advance(frame_time)
         if dt > 0:
             self.predict(dt)
@@ -87,8 +86,6 @@ class ParticleFilter:
                 log_lik: float, scores: np.ndarray | None):
         """The step's summary (:func:`common.tracking.state.filter_state`, before resampling), then
         the resampling it calls for."""
-        from .state import filter_state
-
         w = self.weights
         state = filter_state(frame_time, observed, self.particles, image_xy, w, p_visible, log_lik, scores,
                              self.config.ess_threshold_fraction)
@@ -99,9 +96,6 @@ class ParticleFilter:
         """Set the log weights to ``log_w`` (times the inside-the-image prior when the config
         confines the target to the image), normalised; returns the log of their sum, the step's
         log likelihood."""
-        from . import resampling
-        from .observation import inside_image_log_prior
-
         if self.config.confine_to_image:
             log_w = log_w + inside_image_log_prior(image_xy, observation.image_size)
         log_lik = resampling.logsumexp(log_w)

@@ -75,7 +75,7 @@ RUN_FLAGS = {
     "frames": {"type": positive_int, "metavar": "N"},
     "pace": {"default": "consumer"},
     "image_format": {"default": "auto", "metavar": "F"},
-    "profile": {},
+    "profile": {},  # its choices: the field's type
 }
 """The run's flags (``common.settings.RunSpec`` fields, their documentation the help) with what a
 command line adds to the field's type: the checks, the defaults shown, the metavars."""
@@ -84,15 +84,13 @@ command line adds to the field's type: the checks, the defaults shown, the metav
 def add_run_flags(p: argparse.ArgumentParser, *names: str) -> None:
     """The flags of the run's ``names`` (``--image-format`` for ``image_format``), generated from
     :class:`common.settings.RunSpec` (one declaration for the CLI, the run file and compose)."""
-    from common.settings import PRESETS, RunSpec
-    from services.options import _flag_type
+    from common.settings import RunSpec
+    from services.options import flag_type
 
     for name in names:
         field = RunSpec.model_fields[name]
-        kw = dict(_flag_type(field.annotation) or {})
+        kw = dict(flag_type(field.annotation) or {})
         kw |= RUN_FLAGS[name]
-        if name == "profile":
-            kw["choices"] = sorted(PRESETS)
         p.add_argument("--" + name.replace("_", "-"), dest=name, help=field.description, **kw)
 
 
