@@ -171,10 +171,23 @@ def _peer_env_offline() -> bool:
     uv = shutil.which("uv")
     if uv is None:
         return False
-    probe = subprocess.run([uv, "run", "--offline", "--isolated", "--no-project", "--with", "opencv-contrib-python-headless",
-                            "--with", "numpy", "python", "-c", "import cv2; cv2.TrackerNano_create"],
+    from services.commands.benchmark import peer_env
+
+    probe = subprocess.run([uv, "run", "--offline", *peer_env(), "python", "-c", "import cv2; cv2.TrackerNano_create"],
                            capture_output=True, timeout=120)
     return probe.returncode == 0
+
+
+def test_peers_run_the_products_opencv():
+    """The peers' opencv-contrib is pinned to the product's OpenCV: an unpinned one follows every
+    release, and a release moved NanoTrack on uav123-car16 from 0.902 to 0.128."""
+    import cv2
+
+    from services.commands.benchmark import peer_env
+
+    env = peer_env()
+    pin = env[env.index("--with") + 1]
+    assert pin.startswith("opencv-contrib-python-headless==") and pin.split("==")[1].startswith(cv2.__version__)
 
 
 @pytest.mark.skipif(not (MODELS / "nanotrack_head_sim.onnx").is_file(), reason="no NanoTrack models in ../shared/models")

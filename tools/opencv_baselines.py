@@ -3,8 +3,10 @@
 CSRT, KCF and NanoTrack (``cv2.TrackerNano``) live in opencv-contrib, which the project does not
 depend on (it uses opencv-python-headless), so run this in a throw-away environment:
 
-    uv run --isolated --no-project --with opencv-contrib-python-headless --with numpy \\
+    uv run --isolated --no-project --with opencv-contrib-python-headless==VERSION --with numpy \\
         python tools/opencv_baselines.py /work/shared/data/uavdt-S1001
+
+with VERSION the product's own OpenCV (opencv-python-headless in uv.lock), as the benchmark pins it.
 
 ``polartrack benchmark --peers`` runs it so and scores the boxes with the same scorer as
 PolarTrack's (``common/evaluation/benchmark.py``); this script does not score. Every tracker starts from

@@ -39,7 +39,16 @@ REPO = Path(__file__).resolve().parents[2]
 PEERS_TOOL = REPO / "tools" / "opencv_baselines.py"
 PEERS = ("csrt", "kcf", "nanotrack")
 NANOTRACK_FILES = ("nanotrack_backbone_sim.onnx", "nanotrack_head_sim.onnx")
-PEER_ENV = ["--isolated", "--no-project", "--with", "opencv-contrib-python-headless", "--with", "numpy"]
+
+
+def peer_env() -> list[str]:
+    """``uv run`` options of the peers' isolated environment: opencv-contrib at the very version of
+    the product's OpenCV (from uv.lock), so that the peers' figures are reproducible. Unpinned,
+    a new release moved NanoTrack on uav123-car16 from 0.902 (OpenCV 5.0.0) to 0.128 (5.1.0)."""
+    from importlib.metadata import version
+
+    return ["--isolated", "--no-project", "--with", f"opencv-contrib-python-headless=={version('opencv-python-headless')}",
+            "--with", "numpy"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -95,7 +104,7 @@ def peer_command(args) -> list[str]:
         raise UsageError("--peers: needs uv on PATH (it runs the OpenCV peers in an isolated environment)")
     if not PEERS_TOOL.is_file():
         raise UsageError(f"--peers: {PEERS_TOOL} not found (run from a checkout of the repository)")
-    return [uv, "run", *PEER_ENV, "python", str(PEERS_TOOL)]
+    return [uv, "run", *peer_env(), "python", str(PEERS_TOOL)]
 
 
 def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float, dict | None]:
