@@ -28,7 +28,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from common.sources.base import IMAGE_SUFFIXES, Frame, GroundTruth, Source, SourceError
+from common.sources.base import IMAGE_SUFFIXES, Frame, GroundTruth, Source, SourceError, WrappedSource
 
 __all__ = ["IMAGE_SUFFIXES", "Frame", "GroundTruth", "Source", "SourceError", "open_source"]
 
@@ -148,6 +148,21 @@ class FolderSource(Source):
             yield self.frame(i)
 
 
+def _captured(cap, limit: int | None, clock) -> Iterator[Frame]:
+    """The frames an opened ``cv2.VideoCapture`` reads until it ends (at most ``limit``), frame i
+    taken at ``clock(i)`` s; releases the capture."""
+    i = 0
+    try:
+        while limit is None or i < limit:
+            ok, bgr = cap.read()
+            if not ok:
+                break
+            yield Frame(index=i, time=clock(i), image=np.ascontiguousarray(bgr[:, :, ::-1]))
+            i += 1
+    finally:
+        cap.release()
+
+
 class VideoSource(Source):
     image_format = "jpeg:90"
 
@@ -168,17 +183,7 @@ class VideoSource(Source):
         self.limit = None if n_frames is None else max(0, int(n_frames))
 
     def __iter__(self) -> Iterator[Frame]:
-        cap = cv2.VideoCapture(str(self.path))
-        i = 0
-        try:
-            while self.limit is None or i < self.limit:
-                ok, bgr = cap.read()
-                if not ok:
-                    break
-                yield Frame(index=i, time=i / self.fps, image=np.ascontiguousarray(bgr[:, :, ::-1]))
-                i += 1
-        finally:
-            cap.release()
+        yield from _captured(cv2.VideoCapture(str(self.path)), self.limit, lambda i: i / self.fps)
 
     def __len__(self) -> int:
         cap = cv2.VideoCapture(str(self.path))
@@ -201,23 +206,16 @@ class CameraSource(Source):
         if not cap.isOpened():
             raise SourceError(f"camera {self.device}: cannot be opened (is a camera attached?)")
         t0 = time.monotonic()
-        i = 0
-        try:
-            while self.max_frames is None or i < self.max_frames:
-                ok, bgr = cap.read()
-                if not ok:
-                    break
-                yield Frame(index=i, time=time.monotonic() - t0, image=np.ascontiguousarray(bgr[:, :, ::-1]))
-                i += 1
-        finally:
-            cap.release()
+        yield from _captured(cap, self.max_frames, lambda i: time.monotonic() - t0)
 
 
-class PrerenderedSource(Source):
+class PrerenderedSource(WrappedSource):
     """A seekable source with every frame read (or, for the synthetic scene, rendered) up front and
     held in memory, so that publishing a frame costs what reading a recorded video does
     (``bench --pipeline`` by default: the pipeline without the scene renderer, about 22 ms of
     one core a 1280x720 frame); the frames are the same, bit for bit."""
+
+    forwarded = ("true_centre",)
 
     def __init__(self, source: Source, max_bytes: int = 8 << 30):
         if not hasattr(source, "frame") or source.live:
@@ -227,18 +225,11 @@ class PrerenderedSource(Source):
         if need > max_bytes:
             raise SourceError(f"{source.name}: prerendering {len(source)} frames needs {need / 2**30:.1f} GiB "
                               f"(limit {max_bytes / 2**30:.1f} GiB); use fewer frames or no prerendering")
-        self.inner = source
-        self.name, self.fps, self.image_format = source.name, source.fps, source.image_format
+        super().__init__(source)
         self.frames = [first] + [source.frame(i) for i in range(1, len(source))]
-        if hasattr(source, "true_centre"):  # only what the inner source can answer
-            self.true_centre = source.true_centre
 
     def __len__(self) -> int:
         return len(self.frames)
-
-    @property
-    def has_truth(self) -> bool:
-        return self.inner.has_truth
 
     def frame(self, i: int) -> Frame:
         return self.frames[i]

@@ -1,6 +1,7 @@
-"""The types every frame source shares: :class:`Frame`, :class:`GroundTruth`, :class:`Source` and
-:class:`SourceError` (the sources themselves and ``open_source`` are in :mod:`common.sources`;
-sources defined elsewhere, such as :mod:`common.scene.events`, build on these alone)."""
+"""The types every frame source shares: :class:`Frame`, :class:`GroundTruth`, :class:`Source`,
+:class:`WrappedSource` and :class:`SourceError` (the sources themselves and ``open_source`` are in
+:mod:`common.sources`; sources defined elsewhere, such as :mod:`common.scene.events`, build on
+these alone)."""
 
 from __future__ import annotations
 
@@ -75,3 +76,25 @@ class Source:
     @property
     def has_truth(self) -> bool:
         return False
+
+
+class WrappedSource(Source):
+    """A source over another one, ``inner``: it takes the inner source's name, frame rate, liveness
+    and image format, its length and whether it has ground truth, and those of the extras named in
+    :attr:`forwarded` (such as ``true_centre``) that the inner source has."""
+
+    forwarded: tuple[str, ...] = ()
+
+    def __init__(self, source: Source):
+        self.inner = source
+        self.name, self.fps, self.live, self.image_format = source.name, source.fps, source.live, source.image_format
+        for attr in self.forwarded:  # only what the inner source can answer
+            if hasattr(source, attr):
+                setattr(self, attr, getattr(source, attr))
+
+    def __len__(self) -> int:
+        return len(self.inner)
+
+    @property
+    def has_truth(self) -> bool:
+        return self.inner.has_truth

@@ -17,7 +17,7 @@ import dataclasses
 from typing import Iterator
 
 from common.sources.imageio import decode_rgb, encode_rgb
-from common.sources.base import Frame, Source, SourceError
+from common.sources.base import Frame, Source, SourceError, WrappedSource
 
 FORMATS = ("auto", "raw", "png", "jpeg")
 
@@ -66,23 +66,15 @@ def as_published(frame: Frame, spec: str, source_format: str = "raw") -> Frame:
     return dataclasses.replace(frame, image=decode_rgb(data), encoded=(fmt, data))
 
 
-class PublishedSource(Source):
+class PublishedSource(WrappedSource):
     """A source whose frames are as the bus would carry them with ``spec`` (see module)."""
+
+    forwarded = ("true_centre", "scene", "person_boxes")
 
     def __init__(self, source: Source, spec: str):
         parse_image_format(spec)
-        self.inner, self.spec = source, spec
-        self.name, self.fps, self.live, self.image_format = source.name, source.fps, source.live, source.image_format
-        for attr in ("true_centre", "scene", "person_boxes"):  # what the inner source can answer
-            if hasattr(source, attr):
-                setattr(self, attr, getattr(source, attr))
-
-    def __len__(self) -> int:
-        return len(self.inner)
-
-    @property
-    def has_truth(self) -> bool:
-        return self.inner.has_truth
+        super().__init__(source)
+        self.spec = spec
 
     def frame(self, i: int) -> Frame:
         if not hasattr(self.inner, "frame"):
