@@ -29,18 +29,23 @@ class TemplateAdaptation(BaseModel):
     ``normalise(anchor * H0 + (1 - anchor) * A)`` with ``H0`` the normalised original: however
     many updates, the original keeps weight ``anchor`` (see :mod:`common.single_target.adaptation`)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    enabled: bool = Field(False, description="Adapt the template at all (the real-footage profile does).")
-    min_p_visible: float = Field(0.95, ge=0, le=1, description="Only when p(V=1|Z) is at least this.")
-    min_score: float = Field(0.7, ge=-1, le=1, description="... and the estimate's own score (refined over the "
-                             "angle) is at least this (the real-footage profile: 0.5, see REAL_ADAPTATION).")
-    rate: float = Field(0.1, ge=0, le=1, description="Blend weight of the new appearance per update.")
-    anchor: float = Field(0.5, ge=0, le=1, description="Weight of the ORIGINAL template kept in every blend: "
-                          "the guard against drift (the template never strays further from the original).")
-    interval_s: float = Field(0.1, ge=0, description="At most one update per this many seconds (0: every "
-                              "frame that passes the gates); keeps the adaptation rate per second, not per "
-                              "frame, whatever the frame rate.")
+    enabled: bool = False
+    """Adapt the template at all (the real-footage profile does)."""
+    min_p_visible: float = Field(0.95, ge=0, le=1)
+    """Only when p(V=1|Z) is at least this."""
+    min_score: float = Field(0.7, ge=-1, le=1)
+    """... and the estimate's own score (refined over the angle) is at least this (the real-footage
+    profile: 0.5, see REAL_ADAPTATION)."""
+    rate: float = Field(0.1, ge=0, le=1)
+    """Blend weight of the new appearance per update."""
+    anchor: float = Field(0.5, ge=0, le=1)
+    """Weight of the ORIGINAL template kept in every blend: the guard against drift (the template never
+    strays further from the original)."""
+    interval_s: float = Field(0.1, ge=0)
+    """At most one update per this many seconds (0: every frame that passes the gates); keeps the
+    adaptation rate per second, not per frame, whatever the frame rate."""
 
 
 class ScaleSettings(BaseModel):
@@ -51,107 +56,124 @@ class ScaleSettings(BaseModel):
     target's apparent size relative to the first frame, so the template's fixed footprint
     always sees the target at about its original size."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    mode: Literal["auto", "homography", "search", "off"] = Field(
-        "auto", description="How s_t is kept: 'homography' from the source's ground-plane homography (the "
-        "Jacobian at the estimate relative to the first frame's); 'search' by comparing the MAP's match "
-        "score at neighbouring scales every search_interval_s (the camera's frame-to-frame zoom, when "
-        "stabilising, predicts between searches); 'auto' = homography when the source gives one, else "
-        "search; 'off' = s_t = 1.")
-    target_size_px: float | None = Field(
-        48.0, gt=0, description="Upsample a target whose initial box's long side is shorter than this so that it "
-        "is about this long in the matched image (the footprint the P-matrix layout was designed for: a "
-        "~50 px car). None: never upsample.")
-    max_upsample: float = Field(4.0, ge=1, description="Largest upsampling factor u.")
-    min_factor: float = Field(1 / 16, gt=0, le=1, description="Smallest overall resampling factor k (a target "
-                              "grown 16x beyond u is matched at 1/16 resolution, no less): with the upsampling, a "
-                              "64x range of apparent size.")
-    steps_per_octave: int = Field(12, ge=1, description="k is quantised to 2^(n / this) (k = 1 exactly near 1).")
-    search_interval_s: float = Field(0.2, gt=0, description="Seconds between two scale searches (the growth rate "
-                                     "extrapolates between them).")
-    search_ratio: float = Field(1.12, gt=1, description="Scales tried: s / ratio, s, s * ratio.")
-    search_max_steps: int = Field(2, ge=0, description="When the best of the three is at an end, move the three "
-                                  "scales that way, at most this many steps (a fast-growing target).")
-    search_gain: float = Field(1.0, gt=0, le=1, description="Fraction of the measured log-scale correction applied.")
-    search_rate_gain: float = Field(0.3, ge=0, le=1, description="Scale-rate gain (the beta of an alpha-beta "
-                                    "filter on log s): each search's correction also updates a growth rate "
-                                    "d log(s)/dt extrapolated between searches (a target steadily approaching or "
-                                    "receding). 0: no rate.")
-    max_rate: float = Field(2.0, gt=0, description="Largest |d log(s)/dt| (1/s): e^2 = 7x a second.")
-    search_min_score: float = Field(0.5, ge=-1, le=1, description="Search only when the best score is at least "
-                                    "this (the target is seen well enough to measure its size).")
-    search_min_p_visible: float = Field(0.5, ge=0, le=1, description="... and p(V=1|Z) at least this.")
+    mode: Literal["auto", "homography", "search", "off"] = "auto"
+    """How s_t is kept: 'homography' from the source's ground-plane homography (the Jacobian at the
+    estimate relative to the first frame's); 'search' by comparing the MAP's match score at neighbouring
+    scales every search_interval_s (the camera's frame-to-frame zoom, when stabilising, predicts between
+    searches); 'auto' = homography when the source gives one, else search; 'off' = s_t = 1."""
+    target_size_px: float | None = Field(48.0, gt=0)
+    """Upsample a target whose initial box's long side is shorter than this so that it is about this
+    long in the matched image (the footprint the P-matrix layout was designed for: a ~50 px car). None:
+    never upsample."""
+    max_upsample: float = Field(4.0, ge=1)
+    """Largest upsampling factor u."""
+    min_factor: float = Field(1 / 16, gt=0, le=1)
+    """Smallest overall resampling factor k (a target grown 16x beyond u is matched at 1/16 resolution,
+    no less): with the upsampling, a 64x range of apparent size."""
+    steps_per_octave: int = Field(12, ge=1)
+    """k is quantised to 2^(n / this) (k = 1 exactly near 1)."""
+    search_interval_s: float = Field(0.2, gt=0)
+    """Seconds between two scale searches (the growth rate extrapolates between them)."""
+    search_ratio: float = Field(1.12, gt=1)
+    """Scales tried: s / ratio, s, s * ratio."""
+    search_max_steps: int = Field(2, ge=0)
+    """When the best of the three is at an end, move the three scales that way, at most this many steps
+    (a fast-growing target)."""
+    search_gain: float = Field(1.0, gt=0, le=1)
+    """Fraction of the measured log-scale correction applied."""
+    search_rate_gain: float = Field(0.3, ge=0, le=1)
+    """Scale-rate gain (the beta of an alpha-beta filter on log s): each search's correction also
+    updates a growth rate d log(s)/dt extrapolated between searches (a target steadily approaching or
+    receding). 0: no rate."""
+    max_rate: float = Field(2.0, gt=0)
+    """Largest |d log(s)/dt| (1/s): e^2 = 7x a second."""
+    search_min_score: float = Field(0.5, ge=-1, le=1)
+    """Search only when the best score is at least this (the target is seen well enough to measure its
+    size)."""
+    search_min_p_visible: float = Field(0.5, ge=0, le=1)
+    """... and p(V=1|Z) at least this."""
 
 
 class ReacquisitionSettings(BaseModel):
     """Loss detection and the search that re-acquires a lost target (see :mod:`common.single_target.reacquire`)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    enabled: bool = Field(False, description="Search for the target once it is lost (the real-footage profile does).")
-    lost_p_visible: float = Field(0.5, ge=0, le=1, description="The target counts as held while p(V=1|Z) is at least "
-                                  "this and the estimate is inside the frame.")
-    lost_after_s: float = Field(0.5, ge=0, description="Lost once it has not been held for this many seconds in a row.")
-    false_alarms_per_s: float = Field(0.05, gt=0, description="Accept a detection whose score the background would "
-                                      "reach this often a second over all the hypotheses searched (sets the score "
-                                      "threshold from the likelihood's background Beta).")
-    min_score: float | None = Field(None, ge=-1, le=1, description="A fixed acceptance score instead (None: from "
-                                    "false_alarms_per_s).")
-    tile_px: int = Field(384, ge=64, description="Side of a search tile in matched (resampled) pixels: bounds the "
-                         "search's CPU per frame.")
-    tiles_per_frame: int = Field(1, ge=1, description="Tiles searched per frame while lost.")
-    grid_lengths: float = Field(0.3, gt=0, description="Spacing of the candidate centres, in target lengths.")
-    refine_candidates: int = Field(3, ge=1, description="The best coarse candidates of a tile refined on finer grids.")
-    scale_ratio: float = Field(2 ** 0.5, gt=1, description="Successive sweeps of the frame search at the last held "
-                               "scale, then this much smaller and larger, ...")
-    scale_steps: int = Field(8, ge=0, description="... up to this many ratios either way (8 ratios of sqrt(2): 16x), "
-                             "within the range the matching can follow.")
-    assumed_interval_s: float = Field(0.1, gt=0, description="Frame interval assumed for the threshold on the first "
-                                      "search (later: the measured one).")
+    enabled: bool = False
+    """Search for the target once it is lost (the real-footage profile does)."""
+    lost_p_visible: float = Field(0.5, ge=0, le=1)
+    """The target counts as held while p(V=1|Z) is at least this and the estimate is inside the frame."""
+    lost_after_s: float = Field(0.5, ge=0)
+    """Lost once it has not been held for this many seconds in a row."""
+    false_alarms_per_s: float = Field(0.05, gt=0)
+    """Accept a detection whose score the background would reach this often a second over all the
+    hypotheses searched (sets the score threshold from the likelihood's background Beta)."""
+    min_score: float | None = Field(None, ge=-1, le=1)
+    """A fixed acceptance score instead (None: from false_alarms_per_s)."""
+    tile_px: int = Field(384, ge=64)
+    """Side of a search tile in matched (resampled) pixels: bounds the search's CPU per frame."""
+    tiles_per_frame: int = Field(1, ge=1)
+    """Tiles searched per frame while lost."""
+    grid_lengths: float = Field(0.3, gt=0)
+    """Spacing of the candidate centres, in target lengths."""
+    refine_candidates: int = Field(3, ge=1)
+    """The best coarse candidates of a tile refined on finer grids."""
+    scale_ratio: float = Field(2 ** 0.5, gt=1)
+    """Successive sweeps of the frame search at the last held scale, then this much smaller and larger,
+    ..."""
+    scale_steps: int = Field(8, ge=0)
+    """... up to this many ratios either way (8 ratios of sqrt(2): 16x), within the range the matching
+    can follow."""
+    assumed_interval_s: float = Field(0.1, gt=0)
+    """Frame interval assumed for the threshold on the first search (later: the measured one)."""
 
 
 class TrackerSettings(BaseModel):
     """Everything that determines a run's estimates (with the source and the initial box)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    filter: FilterName = Field("rbpf", description="rbpf (Pang), sir (Nelson) or ml (windowed search).")
-    seed: int = Field(0, ge=0, description="Seed of the filter's random generator.")
+    filter: FilterName = "rbpf"
+    """rbpf (Pang), sir (Nelson) or ml (windowed search)."""
+    seed: int = Field(0, ge=0)
+    """Seed of the filter's random generator."""
     rbpf: RBPFConfig = Field(default_factory=RBPFConfig)
     sir: SIRConfig = Field(default_factory=SIRConfig)
     ml: WindowedMLConfig = Field(default_factory=WindowedMLConfig)
     adaptation: TemplateAdaptation = Field(default_factory=TemplateAdaptation)
-    scale: ScaleSettings = Field(
-        default_factory=lambda: ScaleSettings(mode="off", target_size_px=None),
-        description="Matching scale. Default here: off (the services' pipeline); the real-footage profile uses "
-        "ScaleSettings()'s own defaults (upsample small targets, track the scale).")
+    scale: ScaleSettings = Field(default_factory=lambda: ScaleSettings(mode="off", target_size_px=None))
+    """Matching scale. Default here: off (the services' pipeline); the real-footage profile uses
+    ScaleSettings()'s own defaults (upsample small targets, track the scale)."""
     reacquisition: ReacquisitionSettings = Field(default_factory=ReacquisitionSettings)
-    stabilise: Literal["auto", "on", "off"] = Field(
-        "auto", description="Estimate camera motion from the background when the source gives no homography "
-        "(auto), always (on: replacing a source's homography; the world is then the first frame's pixels) or "
-        "never (off: the image is the world frame).")
+    stabilise: Literal["auto", "on", "off"] = "auto"
+    """Estimate camera motion from the background when the source gives no homography (auto), always
+    (on: replacing a source's homography; the world is then the first frame's pixels) or never (off: the
+    image is the world frame)."""
     stabiliser: StabiliserConfig = Field(default_factory=StabiliserConfig)
-    stabilised_world: Literal["first_frame", "previous_frame"] = Field(
-        "previous_frame", description="World frame of a stabilised run's motion model: the first frame's pixels "
-        "(world -> image homographies accumulated over the whole run: a long camera move makes that map strongly "
-        "projective, so a fixed motion noise in world pixels means very different noise in the image), or the "
-        "previous frame's pixels (the particles are carried into each new frame through the frame-to-frame "
-        "homography, velocities through its Jacobian; the world unit is the target's current length, so the "
-        "motion model is in target lengths whatever the zoom or the target's distance). The stabiliser "
-        "accumulates the first-frame homography either way.")
-    compensate_camera_rotation: bool = Field(
-        False, description="Turn the particles' orientation by the camera's own frame-to-frame image rotation at "
-        "the target (from the homographies), so the orientation walk models the target's turns only.")
-    motion_noise_lengths: float | None = Field(
-        None, ge=0, description="If set, the position filters' driving noise is sqrt(q) = this many target "
-        "lengths per s^1.5 per axis, the target length being the initial box's long side in world units "
-        "(q = (this * L)^2, overriding rbpf/sir.motion); None keeps the configured q.")
-    init_vel_lengths: float | None = Field(
-        None, ge=0, description="If set, init_vel_std = this many target lengths per second (as above).")
-    init_pos_std: float = Field(0.0, ge=0, description="Initial spread of the particles' position (world units).")
-    init_vel_std: float = Field(10.0, ge=0, description="Initial spread of the particles' velocity (world units "
-                                "per second): the first box says where the target is, not how it moves.")
+    stabilised_world: Literal["first_frame", "previous_frame"] = "previous_frame"
+    """World frame of a stabilised run's motion model: the first frame's pixels (world -> image
+    homographies accumulated over the whole run: a long camera move makes that map strongly projective,
+    so a fixed motion noise in world pixels means very different noise in the image), or the previous
+    frame's pixels (the particles are carried into each new frame through the frame-to-frame homography,
+    velocities through its Jacobian; the world unit is the target's current length, so the motion model
+    is in target lengths whatever the zoom or the target's distance). The stabiliser accumulates the
+    first-frame homography either way."""
+    compensate_camera_rotation: bool = False
+    """Turn the particles' orientation by the camera's own frame-to-frame image rotation at the target
+    (from the homographies), so the orientation walk models the target's turns only."""
+    motion_noise_lengths: float | None = Field(None, ge=0)
+    """If set, the position filters' driving noise is sqrt(q) = this many target lengths per s^1.5 per
+    axis, the target length being the initial box's long side in world units (q = (this * L)^2,
+    overriding rbpf/sir.motion); None keeps the configured q."""
+    init_vel_lengths: float | None = Field(None, ge=0)
+    """If set, init_vel_std = this many target lengths per second (as above)."""
+    init_pos_std: float = Field(0.0, ge=0)
+    """Initial spread of the particles' position (world units)."""
+    init_vel_std: float = Field(10.0, ge=0)
+    """Initial spread of the particles' velocity (world units per second): the first box says where the
+    target is, not how it moves."""
 
     @model_validator(mode="before")
     @classmethod
@@ -318,27 +340,35 @@ class RunSpec(BaseModel):
     (:func:`profile_for`: the synthetic scene's calibration, or the real-footage one at the
     source's frame rate) with ``settings`` applied on top."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    source: str = Field(description="video file, image folder, camera:N or synthetic[:SEED], as the services see it")
-    init_box: tuple[float, float, float, float] = Field(description="the target's box x, y, w, h in the first frame")
-    fps: float | None = Field(None, gt=0, description="the source's frame rate (the profile converts the motion "
-                              "model to it); unset: read from the source when a service starts")
-    frames: int | None = Field(None, ge=1, description="only the first N frames")
-    pace: Literal["consumer", "realtime", "max"] = Field(
-        "consumer", description="consumer: each frame waits for the tracker (nothing dropped); realtime: at the "
-        "source's frame rate, stale frames skipped; max: as fast as the source reads")
-    image_format: str = Field("auto", description="frames on the bus and in the recording: auto (a JPEG/PNG file's own "
-                              "bytes; raw for the synthetic scenes; jpeg:90 for video and cameras), raw, png, jpeg "
-                              "or jpeg:QUALITY; run and track with the same format give the same estimates")
-    filter: FilterName = Field("rbpf", description="rbpf (Pang), sir (Nelson) or ml (windowed search)")
-    seed: int = Field(0, ge=0, description="seed of the filter's random generator")
-    particles: int | None = Field(None, ge=1, description="particles of the particle filters (rbpf, sir); unset: the "
-                                  "profile's")
-    profile: ProfileName | None = Field(None, description="the settings profile (common.settings.PRESETS); unset: "
-                                        "synthetic for the built-in scenes, real for the rest")
-    settings: dict = Field(default_factory=dict, description="tracker settings (common.settings.TrackerSettings, "
-                           "nested tables) that replace the profile's")
+    source: str
+    """video file, image folder, camera:N or synthetic[:SEED], as the services see it"""
+    init_box: tuple[float, float, float, float]
+    """the target's box x, y, w, h in the first frame"""
+    fps: float | None = Field(None, gt=0)
+    """the source's frame rate (the profile converts the motion model to it); unset: read from the
+    source when a service starts"""
+    frames: int | None = Field(None, ge=1)
+    """only the first N frames"""
+    pace: Literal["consumer", "realtime", "max"] = "consumer"
+    """consumer: each frame waits for the tracker (nothing dropped); realtime: at the source's frame
+    rate, stale frames skipped; max: as fast as the source reads"""
+    image_format: str = "auto"
+    """frames on the bus and in the recording: auto (a JPEG/PNG file's own bytes; raw for the synthetic
+    scenes; jpeg:90 for video and cameras), raw, png, jpeg or jpeg:QUALITY; run and track with the same
+    format give the same estimates"""
+    filter: FilterName = "rbpf"
+    """rbpf (Pang), sir (Nelson) or ml (windowed search)"""
+    seed: int = Field(0, ge=0)
+    """seed of the filter's random generator"""
+    particles: int | None = Field(None, ge=1)
+    """particles of the particle filters (rbpf, sir); unset: the profile's"""
+    profile: ProfileName | None = None
+    """the settings profile (common.settings.PRESETS); unset: synthetic for the built-in scenes, real
+    for the rest"""
+    settings: dict = Field(default_factory=dict)
+    """tracker settings (common.settings.TrackerSettings, nested tables) that replace the profile's"""
 
     def tracker_settings(self) -> TrackerSettings:
         """The run's settings: the profile for the source, then ``settings``; ValueError (one

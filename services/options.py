@@ -83,6 +83,11 @@ def flag_type(annotation):
     return None
 
 
+def field_help(field) -> str | None:
+    """A settings field's description as one paragraph (an attribute docstring keeps its line breaks)."""
+    return None if field.description is None else " ".join(field.description.split())
+
+
 def add_model_flags(p: argparse.ArgumentParser, model: type[BaseModel], skip: tuple[str, ...] = ()) -> list[str]:
     """A flag for every field of ``model`` that a command line can hold (``--max-lag-frames N`` for
     ``max_lag_frames``; booleans ``--x / --no-x``), with the field's description as its help; the
@@ -92,7 +97,7 @@ def add_model_flags(p: argparse.ArgumentParser, model: type[BaseModel], skip: tu
         kw = None if name in skip else flag_type(field.annotation)
         if kw is None:
             continue
-        p.add_argument("--" + name.replace("_", "-"), dest=name, default=None, help=field.description, **kw)
+        p.add_argument("--" + name.replace("_", "-"), dest=name, default=None, help=field_help(field), **kw)
         keys.append(name)
     return keys
 

@@ -22,23 +22,8 @@ from typing import Protocol
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
-
-class HistogramConfig(BaseModel):
-    """Colour-histogram binning."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    hue_bins: int = Field(12, ge=1, le=180, description="Hue bins for coloured pixels.")
-    sat_bins: int = Field(3, ge=1, le=32, description="Saturation bins for coloured pixels.")
-    value_bins: int = Field(4, ge=1, le=32, description="Brightness bins for grey pixels (low saturation or dark).")
-    min_saturation: int = Field(50, ge=0, le=255, description="Pixels below this saturation (0-255) count as grey.")
-    min_value: int = Field(40, ge=0, le=255, description="Pixels below this value (0-255) count as grey (too dark for a hue).")
-
-    @property
-    def n_bins(self) -> int:
-        return self.hue_bins * self.sat_bins + self.value_bins
+from .config import HistogramConfig
 
 
 class PartEvidence(Protocol):

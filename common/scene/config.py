@@ -19,96 +19,75 @@ MAX_SMOKE_FRACTION_OF_RUN = 0.25
 class SceneConfig(BaseModel):
     """Everything that shapes a synthetic scene except the seed (pass that to ``SyntheticScene``)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
     # --- video -------------------------------------------------------------------------------
-    width: int = Field(1280, ge=64, le=8192, description="Image width in pixels.")
-    height: int = Field(720, ge=64, le=8192, description="Image height in pixels.")
-    fps: float = Field(30.0, gt=0, le=1000, description="Frame rate; frame i is captured at i / fps s.")
-    n_frames: int = Field(
-        300, ge=20, le=100_000,
-        description="Number of frames. The manoeuvres (turns, smoke, decoy pass, wall) are placed "
-        "at fixed fractions of the run, so a shorter run squeezes them.",
-    )
-    noise_sigma: float = Field(
-        4.0, ge=0, le=64,
-        description="Std of the per-pixel, per-channel sensor noise in grey levels (0 = no noise).",
-    )
+    width: int = Field(1280, ge=64, le=8192)
+    """Image width in pixels."""
+    height: int = Field(720, ge=64, le=8192)
+    """Image height in pixels."""
+    fps: float = Field(30.0, gt=0, le=1000)
+    """Frame rate; frame i is captured at i / fps s."""
+    n_frames: int = Field(300, ge=20, le=100_000)
+    """Number of frames. The manoeuvres (turns, smoke, decoy pass, wall) are placed at fixed fractions
+    of the run, so a shorter run squeezes them."""
+    noise_sigma: float = Field(4.0, ge=0, le=64)
+    """Std of the per-pixel, per-channel sensor noise in grey levels (0 = no noise)."""
 
     # --- vehicles ----------------------------------------------------------------------------
-    car_length_m: float = Field(4.5, gt=1, le=20, description="Length of the target (and decoy) car in metres.")
-    car_width_m: float = Field(2.1, gt=0.5, le=5, description="Width of the target (and decoy) car in metres.")
-    speed_mps: float = Field(
-        6.5, gt=0, le=40,
-        description="Nominal target speed in m/s (each seed varies it by +-10%; the car slows in the "
-        "sharp turn).",
-    )
-    target_color: RGB = Field((205, 28, 32), description="RGB body colour of the target car.")
-    decoy: bool = Field(True, description="Whether the look-alike decoy car is in the scene.")
-    decoy_color: RGB = Field(
-        (128, 18, 38), description="RGB body colour of the decoy car (same size and shape as the target)."
-    )
-    decoy_distance_car_lengths: float = Field(
-        1.5, gt=0,
-        description="Closest centre-to-centre distance between decoy and target, in car lengths. "
-        "The decoy drives the opposite way on a parallel line at this offset and passes the "
-        "target at about 57.5% of the run.",
-    )
+    car_length_m: float = Field(4.5, gt=1, le=20)
+    """Length of the target (and decoy) car in metres."""
+    car_width_m: float = Field(2.1, gt=0.5, le=5)
+    """Width of the target (and decoy) car in metres."""
+    speed_mps: float = Field(6.5, gt=0, le=40)
+    """Nominal target speed in m/s (each seed varies it by +-10%; the car slows in the sharp turn)."""
+    target_color: RGB = (205, 28, 32)
+    """RGB body colour of the target car."""
+    decoy: bool = True
+    """Whether the look-alike decoy car is in the scene."""
+    decoy_color: RGB = (128, 18, 38)
+    """RGB body colour of the decoy car (same size and shape as the target)."""
+    decoy_distance_car_lengths: float = Field(1.5, gt=0)
+    """Closest centre-to-centre distance between decoy and target, in car lengths. The decoy drives the
+    opposite way on a parallel line at this offset and passes the target at about 57.5% of the run."""
 
     # --- occlusion ---------------------------------------------------------------------------
-    smoke_duration_s: float = Field(
-        1.5, ge=0,
-        description="How long the smoke cloud hides the target completely (visible_fraction == 0), "
-        "in seconds, rounded to whole frames. 0 removes the smoke.",
-    )
-    smoke_edge_m: float = Field(
-        1.5, gt=0, le=30, description="Mean width in metres of the cloud's soft, semi-transparent rim."
-    )
-    wall_cover_fraction: float = Field(
-        0.5, ge=0, le=0.95,
-        description="Fraction of the car's width hidden by the building edge while the car drives "
-        "along it (visible_fraction is about 1 minus this). 0 removes the wall.",
-    )
+    smoke_duration_s: float = Field(1.5, ge=0)
+    """How long the smoke cloud hides the target completely (visible_fraction == 0), in seconds, rounded
+    to whole frames. 0 removes the smoke."""
+    smoke_edge_m: float = Field(1.5, gt=0, le=30)
+    """Mean width in metres of the cloud's soft, semi-transparent rim."""
+    wall_cover_fraction: float = Field(0.5, ge=0, le=0.95)
+    """Fraction of the car's width hidden by the building edge while the car drives along it
+    (visible_fraction is about 1 minus this). 0 removes the wall."""
 
     # --- camera ------------------------------------------------------------------------------
-    pixels_per_metre: float = Field(
-        50 / 4.5, gt=0.5, le=200,
-        description="Ground resolution at the image centre in the first frame (sets the zoom).",
-    )
-    camera_altitude_m: float = Field(120.0, gt=5, le=5000, description="Height of the camera above the ground.")
-    camera_tilt_deg: float = Field(
-        5.0, ge=0, le=40, description="Tilt of the optical axis away from nadir (adds mild perspective)."
-    )
-    camera_follow: float = Field(
-        0.5, ge=0, le=1,
-        description="How much the camera follows the (heavily smoothed) target path: 0 hovers, "
-        "1 keeps the smoothed path at the image centre.",
-    )
-    camera_drift_m: float = Field(
-        6.0, ge=0, le=500, description="Extra translation drift of the camera's ground point over the run, in metres."
-    )
-    camera_rotation_deg: float = Field(
-        8.0, ge=-180, le=180, description="Total yaw change of the camera over the run, in degrees."
-    )
-    camera_zoom_change: float = Field(
-        0.08, gt=-0.5, le=1.0,
-        description="Fractional focal-length change over the run (+0.08: the last frame is 8% "
-        "more zoomed in than the first).",
-    )
-    camera_jitter_m: float = Field(
-        0.04, ge=0, le=10, description="Amplitude of the small, smooth wobble of the camera position, in metres."
-    )
+    pixels_per_metre: float = Field(50 / 4.5, gt=0.5, le=200)
+    """Ground resolution at the image centre in the first frame (sets the zoom)."""
+    camera_altitude_m: float = Field(120.0, gt=5, le=5000)
+    """Height of the camera above the ground."""
+    camera_tilt_deg: float = Field(5.0, ge=0, le=40)
+    """Tilt of the optical axis away from nadir (adds mild perspective)."""
+    camera_follow: float = Field(0.5, ge=0, le=1)
+    """How much the camera follows the (heavily smoothed) target path: 0 hovers, 1 keeps the smoothed
+    path at the image centre."""
+    camera_drift_m: float = Field(6.0, ge=0, le=500)
+    """Extra translation drift of the camera's ground point over the run, in metres."""
+    camera_rotation_deg: float = Field(8.0, ge=-180, le=180)
+    """Total yaw change of the camera over the run, in degrees."""
+    camera_zoom_change: float = Field(0.08, gt=-0.5, le=1.0)
+    """Fractional focal-length change over the run (+0.08: the last frame is 8% more zoomed in than the
+    first)."""
+    camera_jitter_m: float = Field(0.04, ge=0, le=10)
+    """Amplitude of the small, smooth wobble of the camera position, in metres."""
 
     # --- ground ------------------------------------------------------------------------------
-    texture_image: str | None = Field(
-        None,
-        description="Optional path of an aerial photograph to use as ground texture instead of the "
-        "procedural town (e.g. ../shared/data/opencv-aerial/aero1.jpg). Used only if the file "
-        "exists; otherwise a warning is issued and the procedural ground is used.",
-    )
-    n_parked_cars: int = Field(
-        30, ge=0, le=2000, description="Number of parked clutter cars (never red) along the side streets."
-    )
+    texture_image: str | None = None
+    """Optional path of an aerial photograph to use as ground texture instead of the procedural town
+    (e.g. ../shared/data/opencv-aerial/aero1.jpg). Used only if the file exists; otherwise a warning is
+    issued and the procedural ground is used."""
+    n_parked_cars: int = Field(30, ge=0, le=2000)
+    """Number of parked clutter cars (never red) along the side streets."""
 
     @field_validator("target_color", "decoy_color")
     @classmethod

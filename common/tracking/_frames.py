@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from pydantic import BaseModel, ConfigDict
 
 from . import resampling
 from .camera import world_to_image
@@ -44,6 +47,22 @@ class FrameClock:
             h = observation.homography
             self.homography = None if h is None else np.asarray(h, dtype=float)
         return self.homography
+
+
+ResamplingScheme = Literal["systematic", "stratified", "multinomial", "residual"]
+"""The schemes of :data:`common.tracking.resampling.SCHEMES` a config may name."""
+
+
+class ParticleFilterConfig(BaseModel):
+    """What the particle filters' configs (RBPF, SIR) declare alike; each adds its own paper's
+    settings. Every field is documented by the docstring under it."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
+
+    confine_to_image: bool = True
+    """Pang 2010 §3 assumes the target always lies within the video frame: a particle whose image
+    position is outside [0, W-1] x [0, H-1] gets zero weight (skipped for a frame where every particle
+    is outside, and on frames without an observation). False: such particles are only scored (0 there)."""
 
 
 class ParticleFilter:

@@ -25,11 +25,11 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 from scipy.special import logsumexp
 
 from . import resampling
-from ._frames import FrameClock, ParticleFilter, make_rng
+from ._frames import FrameClock, ParticleFilter, ParticleFilterConfig, ResamplingScheme, make_rng
 from .likelihood import BetaRatioLikelihood, LikelihoodModel
 from .motion import (NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain, jump_mixture_log_weights,
                      wrap_degrees)
@@ -38,71 +38,49 @@ from .orientation_proposal import sample_orientation
 from .state import InitialState, TrackState
 
 
-class RBPFConfig(BaseModel):
+class RBPFConfig(ParticleFilterConfig):
     """Parameters of the RBPF; defaults are Pang 2010 Table 1 (world units: m, or px without homography)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    n_particles: int = Field(200, ge=1, description="N_p, number of particles. Pang 2010 Table 1: 200.")
-    ess_threshold_fraction: float = Field(
-        0.9,
-        ge=0.0,
-        le=1.0,
-        description="Resample when N_eff < fraction * N. Pang 2010 Table 1: N_thr = 180 with N_p = 200, i.e. 0.9. "
-        "0 never resamples.",
-    )
-    motion: NearConstantVelocity = Field(
-        default_factory=NearConstantVelocity, description="X_t dynamics (Pang eqs. 7-9)."
-    )
-    orientation: OrientationRandomWalk = Field(
-        default_factory=OrientationRandomWalk, description="theta_t dynamics (Pang eq. 10)."
-    )
-    visibility: VisibilityMarkovChain = Field(
-        default_factory=VisibilityMarkovChain, description="V_t Markov chain (Pang eq. 11)."
-    )
-    likelihood: LikelihoodModel = Field(
-        default_factory=BetaRatioLikelihood, description="p(Z_t | S_t, V_t) (Pang eqs. 15-19)."
-    )
-    confine_to_image: bool = Field(
-        True,
-        description="Pang 2010 §3 assumes the target always lies within the video frame: a particle whose image "
-        "position is outside [0, W-1] x [0, H-1] gets zero weight (skipped for a frame where every particle is "
-        "outside, and on frames without an observation). False: such particles are only scored (0 there).",
-    )
-    resampling: Literal["systematic", "stratified", "multinomial", "residual"] = Field(
-        "systematic", description="Resampling scheme (Pang 2010 §6: systematic)."
-    )
-    jump_probability: float = Field(
-        0.0, ge=0.0, le=1.0,
-        description="Not in the paper: the motion model's jump component. Per step, a target that was visible "
-        "(weighted by the particle's pi_p(V=1)) moves with this probability by an extra N(0, jump_std^2) per axis: "
-        "a heavy-tailed NCV that lets the cloud leave a secondary peak of the score surface it locked onto (e.g. "
-        "the front half of a car emerging from smoke, matched half a car length ahead). Occluded particles do not "
-        "jump: a hidden target's cloud is not drawn to look-alike clutter. 0 (default) is Pang's model.",
-    )
-    jump_std: float = Field(2.0, gt=0.0, description="Std of a jump per axis, world units (m, or px without homography).")
-    jump_candidates: int = Field(
-        0, ge=0,
-        description="How many of each particle's K candidates are drawn from the jump component (the rest from the "
-        "plain NCV), every candidate weighted by prior / proposal density: jumps are explored at K_j/K per "
-        "candidate however rare the model says they are. 0: jumps are sampled from the prior itself.",
-    )
-    candidates: int = Field(
-        1, ge=1,
-        description="Not in the paper: K > 1 makes each particle propose K candidates from its transition "
-        "(all N*K scored in the one batched query) and keep one, chosen in proportion to its weight, the particle "
-        "taking the sum of its candidates' weights (an exact importance sampler: N*K particles followed by "
-        "resampling within each particle's group). The filter still carries N particles; the scored "
-        "hypotheses per frame are N*K. 1 (default) is Pang's filter.",
-    )
-    orientation_proposal: Literal["prior", "grid"] = Field(
-        "prior",
-        description="'prior' (Pang): theta_t drawn from the random walk, each particle scored at that angle "
-        "(one score_at query). 'grid' (ours): one score_grid query (48 angles per particle, the same cost) gives "
-        "each particle's exact score curve; theta is integrated out on the random walk's nodes and sampled from "
-        "its posterior (common.tracking.orientation_proposal), so a particle in the right place is not judged "
-        "by an orientation a few degrees off.",
-    )
+    n_particles: int = Field(200, ge=1)
+    """N_p, number of particles. Pang 2010 Table 1: 200."""
+    ess_threshold_fraction: float = Field(0.9, ge=0.0, le=1.0)
+    """Resample when N_eff < fraction * N. Pang 2010 Table 1: N_thr = 180 with N_p = 200, i.e. 0.9.
+    0 never resamples."""
+    motion: NearConstantVelocity = Field(default_factory=NearConstantVelocity)
+    """X_t dynamics (Pang eqs. 7-9)."""
+    orientation: OrientationRandomWalk = Field(default_factory=OrientationRandomWalk)
+    """theta_t dynamics (Pang eq. 10)."""
+    visibility: VisibilityMarkovChain = Field(default_factory=VisibilityMarkovChain)
+    """V_t Markov chain (Pang eq. 11)."""
+    likelihood: LikelihoodModel = Field(default_factory=BetaRatioLikelihood)
+    """p(Z_t | S_t, V_t) (Pang eqs. 15-19)."""
+    resampling: ResamplingScheme = "systematic"
+    """Resampling scheme (Pang 2010 §6: systematic)."""
+    jump_probability: float = Field(0.0, ge=0.0, le=1.0)
+    """Not in the paper: the motion model's jump component. Per step, a target that was visible
+    (weighted by the particle's pi_p(V=1)) moves with this probability by an extra N(0, jump_std^2) per
+    axis: a heavy-tailed NCV that lets the cloud leave a secondary peak of the score surface it locked
+    onto (e.g. the front half of a car emerging from smoke, matched half a car length ahead). Occluded
+    particles do not jump: a hidden target's cloud is not drawn to look-alike clutter. 0 (default) is
+    Pang's model."""
+    jump_std: float = Field(2.0, gt=0.0)
+    """Std of a jump per axis, world units (m, or px without homography)."""
+    jump_candidates: int = Field(0, ge=0)
+    """How many of each particle's K candidates are drawn from the jump component (the rest from the
+    plain NCV), every candidate weighted by prior / proposal density: jumps are explored at K_j/K per
+    candidate however rare the model says they are. 0: jumps are sampled from the prior itself."""
+    candidates: int = Field(1, ge=1)
+    """Not in the paper: K > 1 makes each particle propose K candidates from its transition (all N*K
+    scored in the one batched query) and keep one, chosen in proportion to its weight, the particle
+    taking the sum of its candidates' weights (an exact importance sampler: N*K particles followed by
+    resampling within each particle's group). The filter still carries N particles; the scored
+    hypotheses per frame are N*K. 1 (default) is Pang's filter."""
+    orientation_proposal: Literal["prior", "grid"] = "prior"
+    """'prior' (Pang): theta_t drawn from the random walk, each particle scored at that angle (one
+    score_at query). 'grid' (ours): one score_grid query (48 angles per particle, the same cost) gives
+    each particle's exact score curve; theta is integrated out on the random walk's nodes and sampled
+    from its posterior (common.tracking.orientation_proposal), so a particle in the right place is not
+    judged by an orientation a few degrees off."""
 
 
 class RaoBlackwellisedParticleFilter(ParticleFilter):

@@ -12,58 +12,37 @@ with resampling (systematic) when N_eff < N_thr and p(V_t = 1 | Z_1:t) ≈ sum_p
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from . import resampling
-from ._frames import FrameClock, ParticleFilter, make_rng
+from ._frames import FrameClock, ParticleFilter, ParticleFilterConfig, ResamplingScheme, make_rng
 from .likelihood import ExponentialScoreLikelihood, LikelihoodModel
 from .motion import NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain
 from .observation import FrameObservation, ObservationUnavailable, sanitise_scores
 from .state import InitialState, TrackState
 
 
-class SIRConfig(BaseModel):
+class SIRConfig(ParticleFilterConfig):
     """Parameters of the SIR filter; defaults are Nelson 2008 Table I where it gives them."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    n_particles: int = Field(300, ge=1, description="Number of particles. Nelson 2008 Table I: 300.")
-    ess_threshold_fraction: float = Field(
-        0.9,
-        ge=0.0,
-        le=1.0,
-        description="Resample when N_eff < fraction * N. Nelson 2008 §III-E resamples below an unstated N_thr; "
-        "0.9 is Pang 2010 Table 1's 180/200. 1.0 resamples after every informative frame (classic SIR).",
-    )
-    motion: NearConstantVelocity = Field(
-        default_factory=lambda: NearConstantVelocity(q_x=1600.0, q_y=1600.0),
-        description="S_t dynamics (Nelson eqs. 10-12). Nelson 2008 Table I: S_x = S_y = 1600 (units unstated; "
-        "taken as world-units^2/s^3).",
-    )
-    orientation: OrientationRandomWalk = Field(
-        default_factory=OrientationRandomWalk,
-        description="theta random walk. Nelson 2008 gives no S_theta; default Pang 2010 Table 1, 16 deg^2 per frame.",
-    )
-    visibility: VisibilityMarkovChain = Field(
-        default_factory=lambda: VisibilityMarkovChain(p_nv=0.1, p_v=0.25),
-        description="V_t Markov chain (Nelson eqs. 13-14). Nelson 2008 Table I: P_NV = 0.1, P_V = 0.25.",
-    )
-    likelihood: LikelihoodModel = Field(
-        default_factory=ExponentialScoreLikelihood,
-        description="p(z_t | X_t) (Nelson eq. 15; Table I: k = 5, NV_c = 0.2).",
-    )
-    confine_to_image: bool = Field(
-        True,
-        description="Pang 2010 §3 assumes the target always lies within the video frame: a particle whose image "
-        "position is outside [0, W-1] x [0, H-1] gets zero weight (skipped for a frame where every particle is "
-        "outside, and on frames without an observation). False: such particles are only scored (0 there).",
-    )
-    resampling: Literal["systematic", "stratified", "multinomial", "residual"] = Field(
-        "systematic", description="Resampling scheme (Nelson 2008 §III-E: systematic)."
-    )
+    n_particles: int = Field(300, ge=1)
+    """Number of particles. Nelson 2008 Table I: 300."""
+    ess_threshold_fraction: float = Field(0.9, ge=0.0, le=1.0)
+    """Resample when N_eff < fraction * N. Nelson 2008 §III-E resamples below an unstated N_thr; 0.9
+    is Pang 2010 Table 1's 180/200. 1.0 resamples after every informative frame (classic SIR)."""
+    motion: NearConstantVelocity = Field(default_factory=lambda: NearConstantVelocity(q_x=1600.0, q_y=1600.0))
+    """S_t dynamics (Nelson eqs. 10-12). Nelson 2008 Table I: S_x = S_y = 1600 (units unstated; taken
+    as world-units^2/s^3)."""
+    orientation: OrientationRandomWalk = Field(default_factory=OrientationRandomWalk)
+    """theta random walk. Nelson 2008 gives no S_theta; default Pang 2010 Table 1, 16 deg^2 per
+    frame."""
+    visibility: VisibilityMarkovChain = Field(default_factory=lambda: VisibilityMarkovChain(p_nv=0.1, p_v=0.25))
+    """V_t Markov chain (Nelson eqs. 13-14). Nelson 2008 Table I: P_NV = 0.1, P_V = 0.25."""
+    likelihood: LikelihoodModel = Field(default_factory=ExponentialScoreLikelihood)
+    """p(z_t | X_t) (Nelson eq. 15; Table I: k = 5, NV_c = 0.2)."""
+    resampling: ResamplingScheme = "systematic"
+    """Resampling scheme (Nelson 2008 §III-E: systematic)."""
 
 
 class SIRParticleFilter(ParticleFilter):

@@ -85,13 +85,13 @@ def add_run_flags(p: argparse.ArgumentParser, *names: str) -> None:
     """The flags of the run's ``names`` (``--image-format`` for ``image_format``), generated from
     :class:`common.settings.RunSpec` (one declaration for the CLI, the run file and compose)."""
     from common.settings import RunSpec
-    from services.options import flag_type
+    from services.options import field_help, flag_type
 
     for name in names:
         field = RunSpec.model_fields[name]
         kw = dict(flag_type(field.annotation) or {})
         kw |= RUN_FLAGS[name]
-        p.add_argument("--" + name.replace("_", "-"), dest=name, help=field.description, **kw)
+        p.add_argument("--" + name.replace("_", "-"), dest=name, help=field_help(field), **kw)
 
 
 def add_overrides_argument(p: argparse.ArgumentParser) -> None:
