@@ -71,9 +71,23 @@ class ParticleFilter:
     resampling after the summary. Each filter keeps its own maths (prediction, likelihood) in
     ``step`` and names its per-particle arrays in :meth:`_take`."""
 
+    config_class: type = ParticleFilterConfig
+    """The filter's config model (its defaults stand in for ``config=None``)."""
     config: object
     particles: np.ndarray
     log_w: np.ndarray
+
+    def __init__(self, config, initial: InitialState,
+                 seed: int | np.random.SeedSequence | np.random.Generator = 0) -> None:
+        """``config`` None means :attr:`config_class`'s defaults; ``initial`` is the prior (world
+        frame), drawn with the filter's own generator (made from ``seed``) as by :meth:`restart`."""
+        self.config = config if config is not None else self.config_class()
+        self.rng = make_rng(seed)
+        self.restart(initial)
+
+    def restart(self, initial: InitialState) -> None:
+        """Start again from the prior ``initial`` (a re-acquisition), drawn with this filter's own generator."""
+        raise NotImplementedError
 
     @classmethod
     def from_image_box(cls, config, box_xyxy: tuple[float, float, float, float], first_observation,

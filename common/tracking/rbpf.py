@@ -88,19 +88,11 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
 
     All randomness comes from ``self.rng``, made from ``seed`` (same inputs + seed -> bit-identical output).
     Per step with an observation: exactly one ``observation.score_at`` call with all N particles.
+    ``RBPF(config, initial, seed)``: ``config`` None means :class:`RBPFConfig` defaults; ``initial``
+    is the prior (world frame).
     """
 
-    def __init__(
-        self,
-        config: RBPFConfig | None,
-        initial: InitialState,
-        seed: int | np.random.SeedSequence | np.random.Generator = 0,
-    ) -> None:
-        """``config`` None means :class:`RBPFConfig` defaults; ``initial`` is the prior (world frame)."""
-        self.config = config if config is not None else RBPFConfig()
-        self.rng = make_rng(seed)
-        particles = initial.sample_particles(self.config.n_particles, self.rng)
-        self._setup(particles, np.full(len(particles), initial.p_visible), None, initial.time)
+    config_class = RBPFConfig
 
     @classmethod
     def from_particles(

@@ -49,18 +49,10 @@ class SIRParticleFilter(ParticleFilter):
     """Nelson 2008 SIR filter with sampled visibility. ``step(frame_time, observation)`` -> :class:`TrackState`.
 
     All randomness comes from ``self.rng``, made from ``seed``. One ``score_at`` call per observed frame.
+    ``SIR(config, initial, seed)``: ``config`` None means :class:`SIRConfig` defaults.
     """
 
-    def __init__(
-        self,
-        config: SIRConfig | None,
-        initial: InitialState,
-        seed: int | np.random.SeedSequence | np.random.Generator = 0,
-    ) -> None:
-        """``config`` None means :class:`SIRConfig` defaults; ``initial`` is the prior (world frame)."""
-        self.config = config if config is not None else SIRConfig()
-        self.rng = make_rng(seed)
-        self.restart(initial)
+    config_class = SIRConfig
 
     def restart(self, initial: InitialState) -> None:
         """Start again from the prior ``initial`` (a re-acquisition), drawn with this filter's own generator."""
