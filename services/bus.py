@@ -30,46 +30,54 @@ class TlsConfig(BaseModel):
     """Zenoh's TLS transport (endpoints ``tls/HOST:PORT``), mutual by default: certificates from
     ``tools/gen_certs.sh OUT_DIR [HOST ...] --client NAME ...``."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    root_ca_certificate: str = Field(description="PEM of the CA that signed every certificate of the deployment")
-    certificate: str | None = Field(None, description="this process's certificate (PEM): the router's, or a "
-                                    "client's (mTLS; its common name is what access-control rules match)")
-    private_key: str | None = Field(None, description="the certificate's private key (PEM)")
-    mtls: bool = Field(True, description="mutual TLS: a client without a certificate signed by the CA cannot connect")
+    root_ca_certificate: str
+    """PEM of the CA that signed every certificate of the deployment"""
+    certificate: str | None = None
+    """this process's certificate (PEM): the router's, or a client's (mTLS; its common name is what
+    access-control rules match)"""
+    private_key: str | None = None
+    """the certificate's private key (PEM)"""
+    mtls: bool = True
+    """mutual TLS: a client without a certificate signed by the CA cannot connect"""
 
 
 class BusConfig(BaseModel):
     """How a service joins the bus."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    stream: str = Field("default", pattern=r"^[A-Za-z0-9_\-]+$",
-                        description="Namespace of this pipeline: keys are polartrack/<stream>/...")
-    mode: Literal["peer", "client", "router"] = Field(
-        "peer", description="peer, client of a Zenoh router, or router (the launcher hosts one on loopback)")
-    listen: list[str] = Field(default_factory=list, description="Zenoh endpoints to listen on, e.g. tcp/127.0.0.1:7447")
-    connect: list[str] = Field(default_factory=list, description="Zenoh endpoints to connect to")
-    multicast_scouting: bool = Field(False, description="Zenoh multicast scouting (off: explicit endpoints only)")
-    shared_memory: bool = Field(False, description="Zenoh shared memory for the large messages (the frame images). "
-                                "Off by default: zenoh 1.10 leaves its segment files in /dev/shm when a process "
-                                "exits, for the next one to clean; the launcher turns it on for the processes it "
-                                "starts and removes their segments (services/shm_files.py)")
-    shm_pool_mb: int = Field(96, ge=8, le=4096, description="Shared memory: the pool a publisher allocates its "
-                             "messages in (MiB). Receivers release a message's buffer once decoded; when the pool "
-                             "is full, Zenoh falls back to copies")
-    shm_threshold_kb: int = Field(1024, ge=4, description="Shared memory: messages at least this large (KiB) go "
-                                  "through it; smaller ones (queries, replies, estimates) through the socket, "
-                                  "which is quicker for them (with every message through shared memory, bench --pipeline "
-                                  "made 3.7 fps; with the frames only, 11)")
-    tls: TlsConfig | None = Field(None, description="TLS (mTLS) transport for multi-host deployments")
-    access_control: dict | None = Field(None, description="Zenoh's access_control section as is (a router's "
-                                        "rules: which subjects, e.g. cert_common_names, may put or declare on "
-                                        "which keys)")
-    ids: dict[str, str] = Field(default_factory=dict, description="The run's per-service sender ids "
-                                "({service: id}, given by the launcher): every message carries its sender's id, "
-                                "and a service accepts a key only from the run's services that speak on it "
-                                "(common.validation.SPEAKERS). Empty: every sender accepted")
+    stream: str = Field("default", pattern=r"^[A-Za-z0-9_\-]+$")
+    """Namespace of this pipeline: keys are polartrack/<stream>/..."""
+    mode: Literal["peer", "client", "router"] = "peer"
+    """peer, client of a Zenoh router, or router (the launcher hosts one on loopback)"""
+    listen: list[str] = Field(default_factory=list)
+    """Zenoh endpoints to listen on, e.g. tcp/127.0.0.1:7447"""
+    connect: list[str] = Field(default_factory=list)
+    """Zenoh endpoints to connect to"""
+    multicast_scouting: bool = False
+    """Zenoh multicast scouting (off: explicit endpoints only)"""
+    shared_memory: bool = False
+    """Zenoh shared memory for the large messages (the frame images). Off by default: zenoh 1.10 leaves
+    its segment files in /dev/shm when a process exits, for the next one to clean; the launcher turns it
+    on for the processes it starts and removes their segments (services/shm_files.py)"""
+    shm_pool_mb: int = Field(96, ge=8, le=4096)
+    """Shared memory: the pool a publisher allocates its messages in (MiB). Receivers release a
+    message's buffer once decoded; when the pool is full, Zenoh falls back to copies"""
+    shm_threshold_kb: int = Field(1024, ge=4)
+    """Shared memory: messages at least this large (KiB) go through it; smaller ones (queries, replies,
+    estimates) through the socket, which is quicker for them (with every message through shared memory,
+    bench --pipeline made 3.7 fps; with the frames only, 11)"""
+    tls: TlsConfig | None = None
+    """TLS (mTLS) transport for multi-host deployments"""
+    access_control: dict | None = None
+    """Zenoh's access_control section as is (a router's rules: which subjects, e.g. cert_common_names,
+    may put or declare on which keys)"""
+    ids: dict[str, str] = Field(default_factory=dict)
+    """The run's per-service sender ids ({service: id}, given by the launcher): every message carries
+    its sender's id, and a service accepts a key only from the run's services that speak on it
+    (common.validation.SPEAKERS). Empty: every sender accepted"""
 
     def zenoh_config(self) -> zenoh.Config:
         c = zenoh.Config()

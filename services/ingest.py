@@ -33,27 +33,36 @@ log = logging.getLogger("polartrack.ingest")
 
 
 class IngestSettings(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    source: str = Field(description="video file, UAV123 folder, camera:N or synthetic[:SEED]")
-    frames: int | None = Field(None, ge=1, description="only the first N frames")
-    pace: Literal["consumer", "realtime", "max"] = Field("consumer", description="how fast frames go out")
-    window: int = Field(2, ge=1, description="consumer pacing: frames in flight ahead of the last estimate")
-    max_late_frames: int = Field(2, ge=0, description="real time (file sources): a frame up to this many frame "
-                                 "periods late still goes out, stamped with the time it was due, as a camera's "
-                                 "buffered frame would; later ones are skipped and counted as dropped")
-    consumer_timeout_s: float = Field(10.0, gt=0, description="consumer pacing: give up waiting after this")
-    wait_for: list[str] = Field(default_factory=list, description="services to wait for (liveliness) first")
+    source: str
+    """video file, UAV123 folder, camera:N or synthetic[:SEED]"""
+    frames: int | None = Field(None, ge=1)
+    """only the first N frames"""
+    pace: Literal["consumer", "realtime", "max"] = "consumer"
+    """how fast frames go out"""
+    window: int = Field(2, ge=1)
+    """consumer pacing: frames in flight ahead of the last estimate"""
+    max_late_frames: int = Field(2, ge=0)
+    """real time (file sources): a frame up to this many frame periods late still goes out, stamped with
+    the time it was due, as a camera's buffered frame would; later ones are skipped and counted as
+    dropped"""
+    consumer_timeout_s: float = Field(10.0, gt=0)
+    """consumer pacing: give up waiting after this"""
+    wait_for: list[str] = Field(default_factory=list)
+    """services to wait for (liveliness) first"""
     wait_timeout_s: float = Field(60.0, gt=0)
-    start_ns: int | None = Field(None, description="time base: capture_ns of frame 0 (default: now)")
-    run_config: str | None = Field(None, description="RunConfig (JSON) to publish before the first frame")
-    image_format: str = Field("auto", description="frames on the bus and in the recording: auto (a JPEG or PNG "
-                              "file's own bytes, else raw for rendered scenes and jpeg:90 for video and cameras), "
-                              "raw, png (lossless), jpeg or jpeg:QUALITY (lossy: every consumer decodes the "
-                              "published bytes); see common.sources.published")
-    prerender: bool = Field(False, description="read or render every frame before the first is published "
-                            "(seekable sources; memory: all frames), so that the source costs no more than "
-                            "reading a recorded video while the run goes on")
+    start_ns: int | None = None
+    """time base: capture_ns of frame 0 (default: now)"""
+    run_config: str | None = None
+    """RunConfig (JSON) to publish before the first frame"""
+    image_format: str = "auto"
+    """frames on the bus and in the recording: auto (a JPEG or PNG file's own bytes, else raw for
+    rendered scenes and jpeg:90 for video and cameras), raw, png (lossless), jpeg or jpeg:QUALITY
+    (lossy: every consumer decodes the published bytes); see common.sources.published"""
+    prerender: bool = False
+    """read or render every frame before the first is published (seekable sources; memory: all frames),
+    so that the source costs no more than reading a recorded video while the run goes on"""
 
     @field_validator("image_format")
     @classmethod

@@ -35,25 +35,29 @@ log = logging.getLogger("polartrack.recorder")
 
 
 class RecorderSettings(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    out: str = Field(description="MCAP file to write")
-    compression: Literal["lz4", "zstd", "none"] = Field("lz4", description="chunk compression: lz4 (fast), zstd "
-                                                        "(smaller, more CPU) or none")
-    chunk_size: int = Field(256 << 10, ge=1 << 16, description="bytes per chunk (a chunk is the unit lost on SIGKILL); "
-                            "a frame larger than this closes its chunk at once")
-    image_every_s: float = Field(0.0, ge=0, description="keep at most one frame image per this many seconds of "
-                                 "capture time (0: every image; the others counted as dropped): a long soak's "
-                                 "recording of every 1280x720 frame would be 8 GB a minute")
-    simulate_disk_bytes: int | None = Field(None, ge=0, description="testing: the disk holds this many bytes of the "
-                                            "file, and writes beyond raise ENOSPC as a full disk would")
-    reorder_s: float = Field(0.25, ge=0, description="messages are held this long in log (capture) time and "
-                             "written sorted by it (a frame's estimate arrives after the next frame's image)")
-    max_size_mb: float | None = Field(None, gt=0, description="split the recording into files of about this many "
-                                      "MB (NAME.split1.mcap, NAME.split2.mcap, ... after NAME.mcap), each closed "
-                                      "and readable alone; a split falls before a frame image")
-    max_duration_s: float | None = Field(None, gt=0, description="split the recording every this many seconds of "
-                                         "log (capture) time, before a frame image")
+    out: str
+    """MCAP file to write"""
+    compression: Literal["lz4", "zstd", "none"] = "lz4"
+    """chunk compression: lz4 (fast), zstd (smaller, more CPU) or none"""
+    chunk_size: int = Field(256 << 10, ge=1 << 16)
+    """bytes per chunk (a chunk is the unit lost on SIGKILL); a frame larger than this closes its chunk
+    at once"""
+    image_every_s: float = Field(0.0, ge=0)
+    """keep at most one frame image per this many seconds of capture time (0: every image; the others
+    counted as dropped): a long soak's recording of every 1280x720 frame would be 8 GB a minute"""
+    simulate_disk_bytes: int | None = Field(None, ge=0)
+    """testing: the disk holds this many bytes of the file, and writes beyond raise ENOSPC as a full
+    disk would"""
+    reorder_s: float = Field(0.25, ge=0)
+    """messages are held this long in log (capture) time and written sorted by it (a frame's estimate
+    arrives after the next frame's image)"""
+    max_size_mb: float | None = Field(None, gt=0)
+    """split the recording into files of about this many MB (NAME.split1.mcap, NAME.split2.mcap, ...
+    after NAME.mcap), each closed and readable alone; a split falls before a frame image"""
+    max_duration_s: float | None = Field(None, gt=0)
+    """split the recording every this many seconds of log (capture) time, before a frame image"""
 
 
 class DiskFull(Exception):

@@ -48,28 +48,36 @@ log = logging.getLogger("polartrack.tracker")
 
 
 class TrackerServiceSettings(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    init_box: tuple[float, float, float, float] | None = Field(
-        None, description="target box x, y, w, h in the first frame (single-target filters)")
-    multi: str | None = Field(None, description="a multi-target run (common.multitarget.runner.MultiRun as JSON: "
-                              "method, config, first-frame person boxes, seed); set: the multi-target mode")
-    settings: TrackerSettings = Field(default_factory=TrackerSettings, description="the filter's settings")
-    client: str = Field("tracker", description="name in queries (the detector caches regions per client)")
-    query_timeout_s: float = Field(2.0, gt=0, description="querier timeout: no reply by then = no observation")
-    skip_stale: bool = Field(False, description="live source: skip stale frames (see max_lag_frames)")
-    max_lag_frames: int | None = Field(
-        None, ge=0, description="live source: frames are tracked in order while at most this many newer ones "
-        "wait; older ones are stale, skipped and counted (0: always the newest). Default: 14 for the "
-        "single-target filters, which keep up with 30 fps on average, so that a burst of slow frames is "
-        "caught up; 0 for the multi-target ones, slower than the frame rate, where a lag would only add "
-        "latency. Keep it well below the detector's max_frames (24): a query must reach the detector "
-        "before its frame is dropped there")
-    publish_particles: bool = Field(True, description="publish the particle cloud every frame")
-    detector_wait_s: float = Field(30.0, ge=0, description="wait this long for the detector at start")
-    template_timeout_s: float = Field(30.0, gt=0, description="timeout of the template query (first frame)")
-    image_timeout_s: float = Field(5.0, gt=0, description="stabilising: how long a frame info waits for its "
-                                   "image (a frame whose image never comes is skipped and counted in errors)")
+    init_box: tuple[float, float, float, float] | None = None
+    """target box x, y, w, h in the first frame (single-target filters)"""
+    multi: str | None = None
+    """a multi-target run (common.multitarget.runner.MultiRun as JSON: method, config, first-frame
+    person boxes, seed); set: the multi-target mode"""
+    settings: TrackerSettings = Field(default_factory=TrackerSettings)
+    """the filter's settings"""
+    client: str = "tracker"
+    """name in queries (the detector caches regions per client)"""
+    query_timeout_s: float = Field(2.0, gt=0)
+    """querier timeout: no reply by then = no observation"""
+    skip_stale: bool = False
+    """live source: skip stale frames (see max_lag_frames)"""
+    max_lag_frames: int | None = Field(None, ge=0)
+    """live source: frames are tracked in order while at most this many newer ones wait; older ones are
+    stale, skipped and counted (0: always the newest). Default: 14 for the single-target filters, which
+    keep up with 30 fps on average, so that a burst of slow frames is caught up; 0 for the multi-target
+    ones, slower than the frame rate, where a lag would only add latency. Keep it well below the
+    detector's max_frames (24): a query must reach the detector before its frame is dropped there"""
+    publish_particles: bool = True
+    """publish the particle cloud every frame"""
+    detector_wait_s: float = Field(30.0, ge=0)
+    """wait this long for the detector at start"""
+    template_timeout_s: float = Field(30.0, gt=0)
+    """timeout of the template query (first frame)"""
+    image_timeout_s: float = Field(5.0, gt=0)
+    """stabilising: how long a frame info waits for its image (a frame whose image never comes is
+    skipped and counted in errors)"""
 
     @model_validator(mode="after")
     def _one_mode(self):

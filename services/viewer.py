@@ -56,22 +56,31 @@ def handler(topic: str, capacity: int):
 
 
 class ViewerSettings(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    out: str = Field(description="Rerun recording (.rrd) to write")
-    spawn: bool = Field(False, description="also open a live Rerun viewer (when a display is available)")
-    rerun_connect: str | None = Field(None, description="also stream to a running Rerun viewer or server at this gRPC "
-                                "URL, e.g. rerun+http://127.0.0.1:9876/proxy")
-    rerun_serve_port: int | None = Field(None, ge=1, le=65535, description="also host a Rerun gRPC server on loopback at "
-                                   "this port; viewers connect with rerun --connect rerun+http://127.0.0.1:PORT/proxy")
-    jpeg_quality: int = Field(85, ge=1, le=100, description="JPEG quality of the logged frames")
-    track_length: int = Field(300, ge=2, le=100_000, description="estimates kept in the drawn track")
-    quiet_s: float = Field(1.0, gt=0, le=600, description="after end of stream, stop after this long without messages")
-    rotate_frames: int = Field(3000, ge=0, description="a file-only viewer goes on in a new .rrd part "
-                               "(NAME.split1.rrd, ...; one recording: open the parts together) every this many "
-                               "frames (0: never), which frees what Rerun holds for the run so far")
-    max_image_hz: float = Field(10.0, ge=0, description="frame images logged per second of capture time at most "
-                                "(0: every image); the overlays and plots are logged for every frame")
+    out: str
+    """Rerun recording (.rrd) to write"""
+    spawn: bool = False
+    """also open a live Rerun viewer (when a display is available)"""
+    rerun_connect: str | None = None
+    """also stream to a running Rerun viewer or server at this gRPC URL, e.g.
+    rerun+http://127.0.0.1:9876/proxy"""
+    rerun_serve_port: int | None = Field(None, ge=1, le=65535)
+    """also host a Rerun gRPC server on loopback at this port; viewers connect with rerun --connect
+    rerun+http://127.0.0.1:PORT/proxy"""
+    jpeg_quality: int = Field(85, ge=1, le=100)
+    """JPEG quality of the logged frames"""
+    track_length: int = Field(300, ge=2, le=100_000)
+    """estimates kept in the drawn track"""
+    quiet_s: float = Field(1.0, gt=0, le=600)
+    """after end of stream, stop after this long without messages"""
+    rotate_frames: int = Field(3000, ge=0)
+    """a file-only viewer goes on in a new .rrd part (NAME.split1.rrd, ...; one recording: open the
+    parts together) every this many frames (0: never), which frees what Rerun holds for the run so
+    far"""
+    max_image_hz: float = Field(10.0, ge=0)
+    """frame images logged per second of capture time at most (0: every image); the overlays and plots
+    are logged for every frame"""
 
     @field_validator("out")
     @classmethod

@@ -1,6 +1,6 @@
-"""Every settings model in common/ documents each of its fields: the description is the help of the
-flags (services/options.py), the comment above the key in the TOML files (services/deploy.py) and
-the knob's reference."""
+"""Every settings model in common/ and services/ documents each of its fields: the description is the
+help of the flags (services/options.py), the comment above the key in the TOML files
+(services/deploy.py) and the knob's reference."""
 
 import argparse
 import importlib
@@ -11,18 +11,25 @@ from typing import Literal, get_args, get_origin
 from pydantic import BaseModel
 
 import common
+import services
+
+UNDOCUMENTED = {"services.ingest.IngestSettings.wait_timeout_s"}
+"""Fields still without a description (documenting one adds a comment to its deploy/*.toml): take a
+field off this list when it gets its docstring."""
 
 
 def _settings_models() -> dict[str, type[BaseModel]]:
-    """The pydantic models defined in common/ (the generated messages aside), by qualified name."""
+    """The pydantic models defined in common/ (the generated messages aside) and in services/ (the
+    services' settings, the bus's), by qualified name."""
     found = {}
-    for info in pkgutil.walk_packages(common.__path__, "common."):
-        if info.name.startswith("common.msgs"):
-            continue
-        module = importlib.import_module(info.name)
-        for obj in vars(module).values():
-            if inspect.isclass(obj) and issubclass(obj, BaseModel) and obj.__module__ == module.__name__:
-                found[f"{obj.__module__}.{obj.__qualname__}"] = obj
+    for package in (common, services):
+        for info in pkgutil.walk_packages(package.__path__, package.__name__ + "."):
+            if info.name.startswith("common.msgs"):
+                continue
+            module = importlib.import_module(info.name)
+            for obj in vars(module).values():
+                if inspect.isclass(obj) and issubclass(obj, BaseModel) and obj.__module__ == module.__name__:
+                    found[f"{obj.__module__}.{obj.__qualname__}"] = obj
     return found
 
 
@@ -36,11 +43,14 @@ def _needs_description(field) -> bool:
 
 def test_every_settings_field_has_a_description():
     models = _settings_models()
-    assert "common.settings.TrackerSettings" in models and "common.tracking.rbpf.RBPFConfig" in models
-    missing = [f"{name}.{key}" for name, model in sorted(models.items())
+    assert {"common.settings.TrackerSettings", "common.tracking.rbpf.RBPFConfig", "services.bus.BusConfig",
+            "services.ingest.IngestSettings", "services.tracker.TrackerServiceSettings"} <= models.keys()
+    missing = {f"{name}.{key}" for name, model in models.items()
                for key, field in model.model_fields.items()
-               if _needs_description(field) and not (field.description or "").strip()]
-    assert not missing, f"fields without a description: {', '.join(missing)}"
+               if _needs_description(field) and not (field.description or "").strip()}
+    new, done = sorted(missing - UNDOCUMENTED), sorted(UNDOCUMENTED - missing)
+    assert not new, f"fields without a description: {', '.join(new)}"
+    assert not done, f"documented now, take them off UNDOCUMENTED: {', '.join(done)}"
 
 
 def test_attribute_docstrings_are_the_descriptions():

@@ -107,16 +107,19 @@ def answer_part_query(q: ScoreQuery, image: np.ndarray, cache: EvidenceCache, re
 # -- the detector ----------------------------------------------------------------------------
 
 class DetectorSettings(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    max_frames: int = Field(24, ge=1, description="Frames held (oldest dropped): bounds memory. Ten more than the "
-                            "tracker's max_lag_frames: frames reach the detector before the tracker learns of them")
-    wait_frame_s: float = Field(1.0, ge=0, description="How long a query waits for its frame's image to arrive "
-                                "(meanwhile the detector answers the other queries)")
-    max_clients: int = Field(8, ge=1, le=1024, description="Queriers whose prepared regions are kept (least "
-                             "recently used dropped): each holds up to a frame's pyramid (~10 MB at 1280x720)")
-    max_pending: int = Field(64, ge=1, le=10_000, description="Queries waiting for their frame or template at "
-                             "most (beyond: answered UNKNOWN_FRAME at once)")
+    max_frames: int = Field(24, ge=1)
+    """Frames held (oldest dropped): bounds memory. Ten more than the tracker's max_lag_frames: frames
+    reach the detector before the tracker learns of them"""
+    wait_frame_s: float = Field(1.0, ge=0)
+    """How long a query waits for its frame's image to arrive (meanwhile the detector answers the other
+    queries)"""
+    max_clients: int = Field(8, ge=1, le=1024)
+    """Queriers whose prepared regions are kept (least recently used dropped): each holds up to a
+    frame's pyramid (~10 MB at 1280x720)"""
+    max_pending: int = Field(64, ge=1, le=10_000)
+    """Queries waiting for their frame or template at most (beyond: answered UNKNOWN_FRAME at once)"""
 
 
 MIN_FACTOR, MAX_FACTOR = 1.0 / 64.0, 64.0

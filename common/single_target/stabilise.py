@@ -41,35 +41,43 @@ from pydantic import BaseModel, ConfigDict, Field
 class StabiliserConfig(BaseModel):
     """How the camera motion is estimated (see :mod:`common.single_target.stabilise`)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    model: Literal["homography", "affine", "similarity"] = Field(
-        "homography", description="Frame-to-frame motion model: a full homography (a planar ground seen by a "
-        "moving, rotating camera), a 6-parameter affine map, or a 4-parameter similarity.")
-    max_features: int = Field(150, ge=8, description="Corners detected per frame (a homography needs 4; RANSAC "
-                              "over 150 spread over the frame, each checked forward and backward, is plenty).")
-    quality_level: float = Field(0.01, gt=0, lt=1, description="goodFeaturesToTrack quality level.")
-    min_distance_fraction: float = Field(
-        0.01, gt=0, le=0.2, description="Minimum corner spacing as a fraction of the image diagonal "
-        "(spreads the features over the frame whatever the resolution).")
-    exclusion_lengths: float = Field(
-        2.0, ge=0, description="Radius of the disc around the target's last estimate where no feature is taken, "
-        "in target lengths (the target's long side at its current scale).")
-    min_exclusion_px: float = Field(16.0, ge=0, description="... and at least this many pixels.")
-    lk_window_px: int = Field(21, ge=5, description="Lucas-Kanade window side (pixels, odd).")
-    lk_levels: int = Field(4, ge=0, le=8, description="Lucas-Kanade pyramid levels above the full image "
-                           "(4: displacements up to about a window times 2^4 per frame).")
-    max_fb_error_px: float = Field(1.0, gt=0, description="Forward-backward tracking error above which a "
-                                   "feature is dropped.")
-    ransac_threshold_px: float = Field(2.0, gt=0, description="RANSAC inlier threshold (reprojection, pixels).")
-    min_inliers: int = Field(12, ge=4, description="Fewer RANSAC inliers than this: keep the previous motion.")
-    min_inlier_fraction: float = Field(0.25, ge=0, le=1, description="... or fewer than this fraction of the "
-                                       "tracked features.")
-    max_interframe_scale: float = Field(
-        1.25, gt=1, description="Largest plausible frame-to-frame change of scale (or ratio of the two "
-        "axis scales, for shear): beyond it the estimate is rejected as a fallback.")
-    max_width_px: int = Field(640, ge=64, description="Frames wider than this are analysed downscaled "
-                              "(the homography is rescaled to full-resolution pixels).")
+    model: Literal["homography", "affine", "similarity"] = "homography"
+    """Frame-to-frame motion model: a full homography (a planar ground seen by a moving, rotating
+    camera), a 6-parameter affine map, or a 4-parameter similarity."""
+    max_features: int = Field(150, ge=8)
+    """Corners detected per frame (a homography needs 4; RANSAC over 150 spread over the frame, each
+    checked forward and backward, is plenty)."""
+    quality_level: float = Field(0.01, gt=0, lt=1)
+    """goodFeaturesToTrack quality level."""
+    min_distance_fraction: float = Field(0.01, gt=0, le=0.2)
+    """Minimum corner spacing as a fraction of the image diagonal (spreads the features over the frame
+    whatever the resolution)."""
+    exclusion_lengths: float = Field(2.0, ge=0)
+    """Radius of the disc around the target's last estimate where no feature is taken, in target lengths
+    (the target's long side at its current scale)."""
+    min_exclusion_px: float = Field(16.0, ge=0)
+    """... and at least this many pixels."""
+    lk_window_px: int = Field(21, ge=5)
+    """Lucas-Kanade window side (pixels, odd)."""
+    lk_levels: int = Field(4, ge=0, le=8)
+    """Lucas-Kanade pyramid levels above the full image (4: displacements up to about a window times 2^4
+    per frame)."""
+    max_fb_error_px: float = Field(1.0, gt=0)
+    """Forward-backward tracking error above which a feature is dropped."""
+    ransac_threshold_px: float = Field(2.0, gt=0)
+    """RANSAC inlier threshold (reprojection, pixels)."""
+    min_inliers: int = Field(12, ge=4)
+    """Fewer RANSAC inliers than this: keep the previous motion."""
+    min_inlier_fraction: float = Field(0.25, ge=0, le=1)
+    """... or fewer than this fraction of the tracked features."""
+    max_interframe_scale: float = Field(1.25, gt=1)
+    """Largest plausible frame-to-frame change of scale (or ratio of the two axis scales, for shear):
+    beyond it the estimate is rejected as a fallback."""
+    max_width_px: int = Field(640, ge=64)
+    """Frames wider than this are analysed downscaled (the homography is rescaled to full-resolution
+    pixels)."""
 
 
 def _grey(image: np.ndarray, factor: float) -> np.ndarray:

@@ -38,21 +38,23 @@ class BetaRatioLikelihood(BaseModel):
     The clip keeps it finite at Z = 0 and Z = 1 whatever the shape parameters.
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
     kind: Literal["beta_ratio"] = "beta_ratio"
-    a1: float = Field(5.0, gt=0.0, description="alpha of the visible-target PDF Beta(Z|a1,b1). Pang 2010 eq. 18: 5.")
-    b1: float = Field(7.0, gt=0.0, description="beta of the visible-target PDF. Pang 2010 eq. 18: 7.")
-    a0: float = Field(
-        1.0, gt=0.0, description="alpha of the background/occluded PDF Beta(Z|a0,b0). Pang 2010 eq. 18: 1."
-    )
-    b0: float = Field(7.0, gt=0.0, description="beta of the background/occluded PDF. Pang 2010 eq. 18: 7.")
-    eps: float = Field(
-        1e-5, gt=0.0, lt=0.5, description="Z is clipped to [eps, 1 - eps] before taking logs (ours, numerical). "
-        "Scores are single-precision sums of about 1200 products, good to about 1e-6: below 1e-5 from 0 or 1 "
-        "their differences are rounding. With b1 < b0 (the calibrated profiles) the ratio grows as "
-        "(1 - Z)^(b1 - b0) near Z = 1, so an eps of 1e-9 let a rounding difference of 1e-7 between two "
-        "identical particles on the template's own frame weigh 10^5 to 1 and collapse the cloud.")
+    a1: float = Field(5.0, gt=0.0)
+    """alpha of the visible-target PDF Beta(Z|a1,b1). Pang 2010 eq. 18: 5."""
+    b1: float = Field(7.0, gt=0.0)
+    """beta of the visible-target PDF. Pang 2010 eq. 18: 7."""
+    a0: float = Field(1.0, gt=0.0)
+    """alpha of the background/occluded PDF Beta(Z|a0,b0). Pang 2010 eq. 18: 1."""
+    b0: float = Field(7.0, gt=0.0)
+    """beta of the background/occluded PDF. Pang 2010 eq. 18: 7."""
+    eps: float = Field(1e-5, gt=0.0, lt=0.5)
+    """Z is clipped to [eps, 1 - eps] before taking logs (ours, numerical). Scores are single-precision
+    sums of about 1200 products, good to about 1e-6: below 1e-5 from 0 or 1 their differences are
+    rounding. With b1 < b0 (the calibrated profiles) the ratio grows as (1 - Z)^(b1 - b0) near Z = 1, so
+    an eps of 1e-9 let a rounding difference of 1e-7 between two identical particles on the template's
+    own frame weigh 10^5 to 1 and collapse the cloud."""
 
     def clipped_score(self, scores: np.ndarray) -> np.ndarray:
         """Z = clip(max(0, score), eps, 1 - eps)."""
@@ -81,18 +83,18 @@ class ExponentialScoreLikelihood(BaseModel):
     instead, i.e. NV_c is compared with the score itself (see the note on the field).
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
     kind: Literal["exponential"] = "exponential"
-    k: float = Field(5.0, description="Likelihood scale k (per unit score). Nelson 2008 Table I: 5.")
-    nv_c: float = Field(0.2, description="Likelihood constant NV_c when occluded. Nelson 2008 Table I: 0.2.")
-    nv_c_on_score_scale: bool = Field(
-        True,
-        description="True (default): the occluded log-likelihood is k * NV_c, so V=1 is favoured when "
-        "score > NV_c, as the paper's prose requires ('NV_c ... higher than the background correlation "
-        "score ... but much less than the self correlation score'). False: literally eq. 15 as printed, "
-        "exp(NV_c), which favours V=1 whenever score > NV_c / k = 0.04, i.e. almost everywhere.",
-    )
+    k: float = 5.0
+    """Likelihood scale k (per unit score). Nelson 2008 Table I: 5."""
+    nv_c: float = 0.2
+    """Likelihood constant NV_c when occluded. Nelson 2008 Table I: 0.2."""
+    nv_c_on_score_scale: bool = True
+    """True (default): the occluded log-likelihood is k * NV_c, so V=1 is favoured when score > NV_c, as
+    the paper's prose requires ('NV_c ... higher than the background correlation score ... but much less
+    than the self correlation score'). False: literally eq. 15 as printed, exp(NV_c), which favours V=1
+    whenever score > NV_c / k = 0.04, i.e. almost everywhere."""
 
     def log_likelihood(self, scores: np.ndarray) -> np.ndarray:
         s = np.asarray(scores, dtype=float)

@@ -27,7 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 
 class _Component(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
 
 def wrap_degrees(theta: np.ndarray | float) -> np.ndarray:
@@ -45,17 +45,11 @@ class NearConstantVelocity(_Component):
     and T the elapsed time between the two frames' timestamps (seconds).
     """
 
-    q_x: float = Field(
-        625.0,
-        ge=0.0,
-        description="Driving-noise (acceleration) spectral density along world x, world-units^2/s^3. "
-        "Pang 2010 Table 1: 625 m^2 s^-3 (Nelson 2008 Table I uses S_x = 1600).",
-    )
-    q_y: float = Field(
-        625.0,
-        ge=0.0,
-        description="Driving-noise spectral density along world y, world-units^2/s^3. Pang 2010 Table 1: 625.",
-    )
+    q_x: float = Field(625.0, ge=0.0)
+    """Driving-noise (acceleration) spectral density along world x, world-units^2/s^3.
+    Pang 2010 Table 1: 625 m^2 s^-3 (Nelson 2008 Table I uses S_x = 1600)."""
+    q_y: float = Field(625.0, ge=0.0)
+    """Driving-noise spectral density along world y, world-units^2/s^3. Pang 2010 Table 1: 625."""
 
     def transition_matrix(self, dt: float) -> np.ndarray:
         """F(T) of Pang eq. 7, (4, 4)."""
@@ -138,17 +132,12 @@ class OrientationRandomWalk(_Component):
     anticlockwise as displayed (the Polar Matching angle; Pang §3).
     """
 
-    q_theta: float = Field(
-        16.0,
-        ge=0.0,
-        description="Driving-noise variance of the orientation random walk. deg^2 per frame when "
-        "per='frame' (Pang 2010 Table 1: 16 deg^2, at T = 1/3 s), deg^2/s when per='second'.",
-    )
-    per: Literal["frame", "second"] = Field(
-        "frame",
-        description="'frame': variance q_theta per filter step whatever the elapsed time (Pang eq. 10 "
-        "as published); 'second': variance q_theta * T, a Brownian walk in continuous time.",
-    )
+    q_theta: float = Field(16.0, ge=0.0)
+    """Driving-noise variance of the orientation random walk. deg^2 per frame when per='frame'
+    (Pang 2010 Table 1: 16 deg^2, at T = 1/3 s), deg^2/s when per='second'."""
+    per: Literal["frame", "second"] = "frame"
+    """'frame': variance q_theta per filter step whatever the elapsed time (Pang eq. 10 as published);
+    'second': variance q_theta * T, a Brownian walk in continuous time."""
 
     def variance(self, dt: float) -> float:
         """Variance (deg^2) of one step of elapsed time ``dt`` seconds."""
@@ -166,20 +155,12 @@ class VisibilityMarkovChain(_Component):
         p(V_t = 0 | V_{t-1} = 1) = P_NV,     p(V_t = 1 | V_{t-1} = 0) = P_V      (Pang eq. 11)
     """
 
-    p_nv: float = Field(
-        0.1,
-        ge=0.0,
-        le=1.0,
-        description="P_NV, probability that a visible target becomes occluded at the next frame. "
-        "Pang 2010 Table 1: 0.1 (Nelson 2008 Table I: 0.1).",
-    )
-    p_v: float = Field(
-        0.1,
-        ge=0.0,
-        le=1.0,
-        description="P_V, probability that an occluded target becomes visible at the next frame. "
-        "Pang 2010 Table 1: 0.1 (Nelson 2008 Table I: 0.25).",
-    )
+    p_nv: float = Field(0.1, ge=0.0, le=1.0)
+    """P_NV, probability that a visible target becomes occluded at the next frame.
+    Pang 2010 Table 1: 0.1 (Nelson 2008 Table I: 0.1)."""
+    p_v: float = Field(0.1, ge=0.0, le=1.0)
+    """P_V, probability that an occluded target becomes visible at the next frame.
+    Pang 2010 Table 1: 0.1 (Nelson 2008 Table I: 0.25)."""
 
     def transition_matrix(self) -> np.ndarray:
         """A[i, j] = p(V_t = j | V_{t-1} = i), rows/columns ordered (0 = occluded, 1 = visible)."""

@@ -38,26 +38,22 @@ from .state import Estimate, InitialState, TrackState
 
 
 class WindowedMLConfig(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 
-    window_px: int = Field(25, ge=1, description="Side of the search window when locked, pixels. Pang 2010 §8: 25x25.")
-    threshold: float = Field(
-        0.6, description="Minimum max-score to accept a detection. Pang 2010 §8: 0.6 (Nelson 2008 §IV: 0.7)."
-    )
-    growth: float = Field(2.0, gt=1.0, description="Window side multiplier per lost frame (both papers: doubled).")
-    window_points: int | None = Field(
-        25, ge=1, description="Grid points per window side: a doubled window keeps 25 x 25 points at twice the "
-        "spacing (Pang 2010 Fig. 10 counts the ML search's cost in points). None: every pixel of the window.",
-    )
-    max_window_px: int = Field(
-        200, ge=1, description="Cap on the window side, pixels (ours; the papers give none)."
-    )
-    angle_window_deg: float | None = Field(
-        None,
-        ge=0.0,
-        description="If set, when locked only angles within this many degrees of the previous theta are searched "
-        "(Nelson 2008 Theta_t 'small neighbourhood'); None searches all 48 angles (Pang 2010 §8).",
-    )
+    window_px: int = Field(25, ge=1)
+    """Side of the search window when locked, pixels. Pang 2010 §8: 25x25."""
+    threshold: float = 0.6
+    """Minimum max-score to accept a detection. Pang 2010 §8: 0.6 (Nelson 2008 §IV: 0.7)."""
+    growth: float = Field(2.0, gt=1.0)
+    """Window side multiplier per lost frame (both papers: doubled)."""
+    window_points: int | None = Field(25, ge=1)
+    """Grid points per window side: a doubled window keeps 25 x 25 points at twice the spacing
+    (Pang 2010 Fig. 10 counts the ML search's cost in points). None: every pixel of the window."""
+    max_window_px: int = Field(200, ge=1)
+    """Cap on the window side, pixels (ours; the papers give none)."""
+    angle_window_deg: float | None = Field(None, ge=0.0)
+    """If set, when locked only angles within this many degrees of the previous theta are searched
+    (Nelson 2008 Theta_t 'small neighbourhood'); None searches all 48 angles (Pang 2010 §8)."""
 
 
 class WindowedMaximumLikelihood:
