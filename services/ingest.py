@@ -52,6 +52,8 @@ class IngestSettings(BaseModel):
     wait_for: list[str] = Field(default_factory=list)
     """services to wait for (liveliness) first"""
     wait_timeout_s: float = Field(60.0, gt=0)
+    """how long to wait for the wait_for services (seconds); past it an error is logged and counted and
+    the frames go out anyway"""
     start_ns: int | None = None
     """time base: capture_ns of frame 0 (default: now)"""
     run_config: str | None = None

@@ -13,7 +13,7 @@ from pydantic import BaseModel
 import common
 import services
 
-UNDOCUMENTED = {"services.ingest.IngestSettings.wait_timeout_s"}
+UNDOCUMENTED: set[str] = set()
 """Fields still without a description (documenting one adds a comment to its deploy/*.toml): take a
 field off this list when it gets its docstring."""
 
