@@ -130,6 +130,34 @@ class ReacquisitionSettings(BaseModel):
     """Frame interval assumed for the threshold on the first search (later: the measured one)."""
 
 
+class MotionCueSettings(BaseModel):
+    """The moving-target cue of stabilised runs (see :mod:`common.single_target.motion_cue`): the
+    motion energy of the stabilised frames' double difference, an independent likelihood ratio for
+    the visible target."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
+
+    enabled: bool = False
+    """Use the cue where the tracker stabilises (the real-footage profile does); sources with their own
+    homography, and runs that do not stabilise, have no cue."""
+    baseline_s: float = Field(0.1, gt=0)
+    """D, the time between the frames differenced (the current frame against D and 2 D before): a car
+    at an urban 10 m/s moves about a quarter of its 4.5 m length in 0.1 s, enough for its edges to
+    show, little enough for the difference to stay on it."""
+    z_cap: float = Field(6.0, gt=0)
+    """The largest robust z-score of a box's motion energy that counts (a Gaussian tail of 1e-9,
+    log ratio 20.5): beyond it a real background's tail is heavier than a Gaussian's."""
+    region_lengths: float = Field(6.0, gt=0)
+    """Half the side of the square about the last estimate where the energy and its background
+    statistics are taken, in target lengths."""
+    analysis_length_px: float = Field(32.0, gt=4)
+    """The cue works on the pyramid level at which the target is at most this long (its CPU per frame
+    stays bounded for a large target)."""
+    min_boxes: int = Field(16, ge=4)
+    """No cue on a frame whose region holds fewer target-sized boxes (at half a box's spacing) than
+    this: too few for the background's median and spread."""
+
+
 class TrackerSettings(BaseModel):
     """Everything that determines a run's estimates (with the source and the initial box)."""
 
@@ -147,6 +175,7 @@ class TrackerSettings(BaseModel):
     """Matching scale. Default here: off (the services' pipeline); the real-footage profile uses
     ScaleSettings()'s own defaults (upsample small targets, track the scale)."""
     reacquisition: ReacquisitionSettings = Field(default_factory=ReacquisitionSettings)
+    motion_cue: MotionCueSettings = Field(default_factory=MotionCueSettings)
     stabilise: Literal["auto", "on", "off"] = "auto"
     """Estimate camera motion from the background when the source gives no homography (auto), always
     (on: replacing a source's homography; the world is then the first frame's pixels) or never (off: the
@@ -250,6 +279,7 @@ PRESETS: dict[ProfileName, dict] = {
         "motion_noise_lengths": REAL_MOTION_NOISE_LENGTHS,
         "init_vel_lengths": REAL_INIT_VEL_LENGTHS,
         "reacquisition": {"enabled": True},
+        "motion_cue": {"enabled": True},
     },
 }
 """The named profiles: tracker settings (nested, as a run file's ``[settings]``) laid over Pang's

@@ -1,6 +1,6 @@
 """``polartrack run`` equals ``polartrack track`` with every per-frame mechanism of the Tracker on
 (stabilisation, matching upsampled at the target's scale with the scale search, template
-adaptation, the particles turned with the camera): the real services as separate processes on
+adaptation, the particles turned with the camera, the moving-target cue): the real services as separate processes on
 a private loopback Zenoh network, compared estimate by estimate with the in-process Tracker,
 bit for bit; and ``replay --offline`` of that recording."""
 
@@ -46,6 +46,7 @@ def test_every_mechanism_is_exercised(parity_run):
     assert r.returncodes == {"ingest": 0, "tracker": 0, "viewer": None, "detector": 0, "recorder": 0}, \
         (parity_run["dir"] / "tracker.log").read_text()[-2000:]
     assert t.stabiliser is not None and t.stabiliser.frames == FRAMES
+    assert t.motion_cue is not None and t.motion_cue.frames_with_cue >= FRAMES - 3
     assert t.factor > 1.0 and t.scale.searches > 0
     assert t.adaptations > 5
     rec = read_recording(r.mcap)

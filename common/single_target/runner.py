@@ -21,6 +21,7 @@ from common.single_target.adaptation import TemplateAdapter
 from common.detector import Template
 from common.detector.client import DetectorClient, LocalDetector
 from common.detector.layout import SUPPORT_RADIUS_PX
+from common.single_target.motion_cue import MotionCue
 from common.single_target.reacquire import Detection, Reacquirer
 from common.single_target.scale import ScaleTracker
 from common.settings import SYNTHETIC_BETA, TrackerSettings
@@ -30,7 +31,7 @@ from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackS
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world
 from common.tracking.motion import NearConstantVelocity
 from common.tracking.state import InitError
-from common.tracking.observation import ObservationUnavailable
+from common.tracking.observation import CuedObservation, ObservationUnavailable
 
 
 def check_init_box(box: tuple[float, float, float, float], width: int, height: int) -> None:
@@ -132,6 +133,7 @@ class Tracker:
     scale: ScaleTracker | None = None
     adapter: TemplateAdapter | None = None
     reacquirer: Reacquirer | None = None
+    motion_cue: MotionCue | None = None
     last_state: TrackState | None = None
     homography: np.ndarray | None = None
     """World -> image homography of the latest frame stepped (None: identity)."""
@@ -174,6 +176,8 @@ class Tracker:
         tracker._local = local
         tracker._first_h = h0
         tracker._box_size = (float(w), float(h))
+        if settings.motion_cue.enabled and stab is not None:
+            tracker.motion_cue = MotionCue(settings.motion_cue, (float(w), float(h)))
         if settings.reacquisition.enabled and hasattr(tracker.filter, "restart"):
             tracker.reacquirer = Reacquirer(settings.reacquisition, _background_beta(settings), first.size)
         return tracker
@@ -225,7 +229,10 @@ class Tracker:
             self.scale.predict(self.homography, h, world if seen else None, frame.time)
         self.factor = self.scale.factor()
         det = self._search(frame, h)
-        obs = self._obs = self.observation(frame, h)
+        obs = self.observation(frame, h)
+        if self.motion_cue is not None:
+            obs = self._with_motion_cue(frame, obs, det)
+        self._obs = obs
         state = self.filter.step(frame.time, obs)
         self.frames += 1
         self.last_state = state
@@ -251,6 +258,18 @@ class Tracker:
         self._world_xy = image_to_world(self.homography, img)
         self._adapt(frame, state)
         return state
+
+    def _with_motion_cue(self, frame: Frame, obs, det: Detection | None) -> CuedObservation:
+        """``obs`` with the moving-target cue of this frame (:mod:`common.single_target.motion_cue`),
+        prepared about the last estimate (or the re-acquisition's detection)."""
+        if det is not None:
+            centre = (det.x, det.y)
+        elif self.last_state is not None:
+            centre = (self.last_state.map_estimate.image_x, self.last_state.map_estimate.image_y)
+        else:
+            centre = self.template.centre  # the first frame: the first box's centre
+        self.motion_cue.update(frame.time, frame.image, self.stabiliser.homography, centre, self.scale.s)
+        return CuedObservation(obs, self.motion_cue.log_ratio)
 
     def _search(self, frame: Frame, h: np.ndarray | None) -> Detection | None:
         """While the target is lost, search this frame (:mod:`common.single_target.reacquire`); on a confident

@@ -43,6 +43,34 @@ class FrameObservation(Protocol):
         ...
 
 
+class CuedObservation:
+    """A :class:`FrameObservation` with an independent cue: ``cue(image_xy) -> (N,)`` log likelihood
+    ratios for a visible target at those image points, which the particle filters add to log
+    l(V = 1) (:func:`cue_log_ratio`). Everything else is ``base``'s."""
+
+    def __init__(self, base, cue):
+        self.base = base
+        self._cue = cue
+
+    def __getattr__(self, name):
+        return getattr(self.base, name)
+
+    def cue_log_ratio(self, image_xy: np.ndarray) -> np.ndarray:
+        return self._cue(image_xy)
+
+
+def cue_log_ratio(observation, image_xy: np.ndarray) -> np.ndarray | None:
+    """The observation's independent cue at ``image_xy`` (N, 2): (N,) log ratios to add to log
+    l(V = 1) (non-finite values count as 0, no evidence), or None when it has no cue."""
+    f = getattr(observation, "cue_log_ratio", None)
+    if f is None:
+        return None
+    lr = np.asarray(f(image_xy), dtype=float).reshape(-1)
+    if lr.shape != (len(image_xy),):
+        raise ValueError(f"cue returned shape {lr.shape}; expected ({len(image_xy)},)")
+    return np.where(np.isfinite(lr), lr, 0.0)
+
+
 class ObservationUnavailable(Exception):
     """Raised by ``score_at`` / ``score_grid`` when the detector cannot answer (no reply before the
     timeout, the frame unknown to it, ...). A filter then treats the frame as unobserved,

@@ -11,6 +11,8 @@ One step, from t-1 to t with T = t - (t-1) from the timestamps (prior proposal):
     theta_{t,p} ~ N(theta_{t-1,p}, q_theta)                        (eq. 10)
     pi^-_p(j)   = sum_i A[i, j] pi_p(i)                            (eq. 25 / A.3)
     l_p(v)      = p(Z_t | S^N_{t,p}, V_t = v)                      (eqs. 15-16, or Nelson eq. 15)
+                  (times r_p for v = 1 when the observation carries an independent cue: the
+                  moving-target cue of real footage, common.single_target.motion_cue)
     m_p         = sum_v l_p(v) pi^-_p(v)                           (eq. 25 / A.4)
     pi_p(v)     = l_p(v) pi^-_p(v) / m_p                           (A.3)
     w_{t,p}     ∝ w_{t-1,p} m_p                                    (eq. 24 with q = prior)
@@ -33,7 +35,7 @@ from ._frames import FrameClock, ParticleFilter, ParticleFilterConfig, Resamplin
 from .likelihood import BetaRatioLikelihood, LikelihoodModel
 from .motion import (NearConstantVelocity, OrientationRandomWalk, VisibilityMarkovChain, jump_mixture_log_weights,
                      wrap_degrees)
-from .observation import N_ANGLES, FrameObservation, ObservationUnavailable, sanitise_scores
+from .observation import N_ANGLES, FrameObservation, ObservationUnavailable, cue_log_ratio, sanitise_scores
 from .orientation_proposal import sample_orientation
 from .state import InitialState, TrackState
 
@@ -238,10 +240,14 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         integrates theta over its random-walk step (see orientation_proposal)."""
         cfg = self.config
         n = self.n_particles
+        log_pv = self.log_pv  # log pi^-_p(v), with an independent cue's log r_p on v = 1
+        cue = cue_log_ratio(observation, image_xy)
+        if cue is not None:
+            log_pv = log_pv + np.stack([np.zeros(n), cue], axis=1)
         if cfg.orientation_proposal == "prior":
             hyps = np.column_stack([image_xy, self.particles[:, 4]])
             scores, _ = sanitise_scores(*observation.score_at(hyps), n)
-            return scores, self.log_pv + cfg.likelihood.log_likelihood(scores)
+            return scores, log_pv + cfg.likelihood.log_likelihood(scores)
         grid, valid = observation.score_grid(image_xy)
         grid = np.asarray(grid, float)
         valid = np.asarray(valid, bool).reshape(-1)
@@ -250,7 +256,7 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         ok = valid & np.all(np.isfinite(grid), axis=1)
         grid = np.where(ok[:, None], np.clip(grid, -1.0, 1.0), 0.0)
         theta, log_m, scores, joint = sample_orientation(grid, self.particles[:, 4], self._theta_sigma,
-                                                         self.log_pv, cfg.likelihood.log_likelihood, self.rng)
+                                                         log_pv, cfg.likelihood.log_likelihood, self.rng)
         self.particles[:, 4] = wrap_degrees(theta)
         # the weight update below takes logaddexp over joint; give it the theta-marginal instead
         corr = log_m - np.logaddexp(joint[:, 0], joint[:, 1])

@@ -1,0 +1,215 @@
+"""The moving-target cue: where the stabilised frame differs from its recent past, something moves
+over the ground.
+
+Settings: :class:`common.settings.MotionCueSettings`. A small target's template is mostly its
+surroundings (the P-matrix's footprint is several target lengths across), so the polar match can
+hold on to the ground the target stood on while the target drives away: on uav123-truck4 (an
+11x8 px truck) the estimate stayed within 3 px of the first frame's ground point for 150 frames,
+with p(V=1|Z) = 1 (docs/real-footage.md). The camera's motion is known once the frames are
+stabilised, and a vehicle moves over the ground: what moves shows in the difference of the current
+frame and past frames carried into it by the stabiliser's homographies.
+
+For a frame at time t, over a square region about the last estimate (``region_lengths`` target
+lengths either way), on grey levels, with ``W_s`` the past frame at time t - s warped into the
+current one:
+
+    d(x)   = min(|I_t - W_D|, |I_t - W_2D|)            double difference, D = ``baseline_s``
+    e(b)   = mean of d over the box b (the target's current size) centred on a hypothesis
+    z(b)   = (e(b) - median e) / max(1.4826 MAD e, median e / 2)
+                                                         over the target-sized boxes tiling the
+                                                         region at half a box's spacing
+    log r  = -log(2 P(N(0, 1) >= clip(z, 0, z_cap)))     added to log l(V = 1)
+
+The double difference keeps only where the current frame differs from *both* past frames: the
+target's present position, not the ground it has just uncovered (a single difference lights up
+both, and the ghost holds the track where it was). The robust z-score measures a box's motion
+energy against the region's own background (parallax, residual stabilisation error, noise, the
+night's grain), so the cue needs no calibration. The ratio is that of a target that surely shows
+at least this much motion energy against the background's Gaussian tail, capped at ``z_cap``
+(beyond it real backgrounds have heavier tails than a Gaussian). A target that stops shows no
+energy: z <= 0 gives ratio 1, and the polar match alone decides; a box on the ground the target
+left gives ratio 1 too. Where a past frame does not cover a pixel, d is 0 there (no evidence).
+
+The cue works on a Gaussian pyramid level at which the target is at most ``analysis_length_px``
+long, so its CPU per frame is bounded whatever the target's size. It is a deterministic function
+of the frames and the stabiliser's homographies: the same frames give the same cue in-process,
+in the tracker service and on offline replay.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import cv2
+import numpy as np
+from scipy.stats import norm
+
+_BLUR_SIGMA = 1.0
+"""Gaussian blur of the difference image (pixels at the analysis level): sensor noise is per
+pixel, a moving target's difference is coherent over many."""
+_RELATIVE_FLOOR = 0.25
+"""Smallest robust spread of the box energies as a fraction of their median: a box must exceed the
+region's typical energy by a good part of it, not only by many sigmas of a spread that averaging
+over the box has made tiny (a quiet, exactly stabilised background). Half: where only one of the
+two differences is noise (the ground a mover has just left), the minimum of the two is about 1.5
+times the background's minimum of two noises, which must not count."""
+_MAD_FLOOR = 0.25
+"""... and in grey levels: a flat, noiseless region must not turn rounding into a large z."""
+
+
+class MotionCue:
+    """The cue of one track (see the module docstring): ``update`` once a frame before the filter
+    step, then ``log_ratio`` for the hypotheses of that frame."""
+
+    def __init__(self, cfg, box_size: tuple[float, float]):
+        self.cfg = cfg
+        self.box_size = (float(box_size[0]), float(box_size[1]))
+        """The first box's (w, h), image pixels; a hypothesis' box is this times the scale s."""
+        self._history: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._integral: np.ndarray | None = None
+        self._origin = (0.0, 0.0)
+        self._factor = 1.0
+        self._stats: tuple[float, float] | None = None
+        self._scale = 1.0
+        self.frames_with_cue = 0
+
+    def update(self, time: float, image: np.ndarray, homography: np.ndarray, centre: tuple[float, float],
+               scale: float) -> None:
+        """Take frame ``image`` at ``time`` with its accumulated ``homography`` (first frame's pixels ->
+        this image), and prepare the cue around ``centre`` (the last estimate, image pixels) for
+        boxes of the target at scale ``scale``."""
+        grey = image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+        self._history.append((float(time), grey, np.asarray(homography, float)))
+        horizon = float(time) - 2 * self.cfg.baseline_s
+        while len(self._history) > 3 and self._history[1][0] <= horizon + 1e-9:
+            self._history.popleft()
+        self._integral = None
+        self._scale = float(scale)
+        pair = self._past_pair(float(time))
+        if pair is None or not all(math.isfinite(v) for v in centre):
+            return
+        self._prepare(grey, np.asarray(homography, float), pair, centre)
+
+    def _past_pair(self, time: float):
+        """The frames about ``baseline_s`` and twice that before ``time``; before the history holds
+        that much, the longest whole baseline it holds (from the third frame on)."""
+        past = list(self._history)[:-1]
+        if len(past) < 2:
+            return None
+        d = self.cfg.baseline_s
+        if time - past[0][0] < 2 * d - 1e-9:
+            n = len(past) // 2
+            return past[-n], past[-2 * n]
+        a = min(past, key=lambda h: abs(h[0] - (time - d)))
+        b = min(past, key=lambda h: abs(h[0] - (time - 2 * d)))
+        return (a, b) if a is not b else None
+
+    def _prepare(self, grey: np.ndarray, h_now: np.ndarray, pair, centre) -> None:
+        cfg = self.cfg
+        height, width = grey.shape[:2]
+        length = max(self.box_size) * self._scale
+        level = max(0, int(math.ceil(math.log2(max(length / cfg.analysis_length_px, 1.0)) - 1e-9)))
+        f = 0.5 ** level
+        r = cfg.region_lengths * length + 2 * length
+        x0, y0 = max(0, int(centre[0] - r)), max(0, int(centre[1] - r))
+        x1, y1 = min(width, int(math.ceil(centre[0] + r))), min(height, int(math.ceil(centre[1] + r)))
+        out_w, out_h = int((x1 - x0) * f), int((y1 - y0) * f)
+        if out_w < 8 or out_h < 8:
+            return
+        # current-image pixels -> analysis pixels
+        to_out = np.array([[f, 0, -x0 * f], [0, f, -y0 * f], [0, 0, 1.0]])
+        cur, _ = _warped(grey, to_out, level, (out_w, out_h))
+        diffs = []
+        for _, past, h_past in pair:
+            try:
+                m = to_out @ h_now @ np.linalg.inv(h_past)  # past image -> analysis pixels
+                w, covered = _warped(past, m, level, (out_w, out_h))
+            except np.linalg.LinAlgError:
+                return
+            diffs.append(np.where(covered, np.abs(cur - w), 0.0).astype(np.float32))
+        d = cv2.GaussianBlur(np.minimum(diffs[0], diffs[1]), (0, 0), _BLUR_SIGMA)
+        self._integral = cv2.integral(d, sdepth=cv2.CV_64F)
+        self._origin = (float(x0), float(y0))
+        self._factor = f
+        # the background: boxes of the target's size tiling the region
+        bw, bh = self._box()
+        step = max(bw, bh) / 2  # boxes overlapping by half: the strongest box is near the peak
+        gx, gy = np.meshgrid(np.arange(x0 + bw / 2, x1 - bw / 2 + 1e-9, step),
+                             np.arange(y0 + bh / 2, y1 - bh / 2 + 1e-9, step))
+        e = self._box_means(np.stack([gx.ravel(), gy.ravel()], axis=1))
+        e = e[np.isfinite(e)]
+        if len(e) < cfg.min_boxes:
+            self._integral = None
+            return
+        med = float(np.median(e))
+        spread = max(1.4826 * float(np.median(np.abs(e - med))), _RELATIVE_FLOOR * med, _MAD_FLOOR)
+        self._stats = (med, spread)
+        self.frames_with_cue += 1
+
+    def _box(self) -> tuple[float, float]:
+        return (max(self.box_size[0] * self._scale, 2.0), max(self.box_size[1] * self._scale, 2.0))
+
+    def _box_means(self, xy: np.ndarray) -> np.ndarray:
+        """Mean of d over the target-sized box centred on each image point (NaN off the region)."""
+        ii = self._integral
+        hh, ww = ii.shape[0] - 1, ii.shape[1] - 1
+        bw, bh = self._box()
+        f = self._factor
+        x = (xy[:, 0] - self._origin[0]) * f
+        y = (xy[:, 1] - self._origin[1]) * f
+        with np.errstate(invalid="ignore"):
+            xa = np.clip(np.round(x - bw * f / 2), 0, ww).astype(np.int64)
+            xb = np.clip(np.round(x + bw * f / 2), 0, ww).astype(np.int64)
+            ya = np.clip(np.round(y - bh * f / 2), 0, hh).astype(np.int64)
+            yb = np.clip(np.round(y + bh * f / 2), 0, hh).astype(np.int64)
+        area = (xb - xa) * (yb - ya)
+        s = ii[yb, xb] - ii[ya, xb] - ii[yb, xa] + ii[ya, xa]
+        ok = (area > 0) & np.isfinite(x) & np.isfinite(y)
+        return np.where(ok, s / np.maximum(area, 1), np.nan)
+
+    def z_scores(self, image_xy: np.ndarray) -> np.ndarray:
+        """The robust z-score of each hypothesis box's motion energy (0 where there is no cue)."""
+        xy = np.asarray(image_xy, float).reshape(-1, 2)
+        if self._integral is None or self._stats is None:
+            return np.zeros(len(xy))
+        med, spread = self._stats
+        z = (self._box_means(xy) - med) / spread
+        return np.where(np.isfinite(z), z, 0.0)
+
+    def log_ratio(self, image_xy: np.ndarray) -> np.ndarray:
+        """log r per hypothesis (image pixels): the cue's likelihood ratio for V = 1 (0: no evidence)."""
+        z = np.clip(self.z_scores(image_xy), 0.0, self.cfg.z_cap)
+        return -(norm.logsf(z) + math.log(2.0))
+
+
+def _warped(image: np.ndarray, m: np.ndarray, level: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """``image`` mapped by ``m`` (its pixels -> output pixels) onto an output of ``size``, float32, and
+    the output pixels the image covers. Only the part of ``image`` that maps into the output is
+    read; at pyramid ``level`` > 0 it is blurred for that level first (no aliasing at the analysis
+    resolution)."""
+    height, width = image.shape[:2]
+    out_w, out_h = size
+    sigma = 0.5 * math.sqrt(4.0 ** level - 1.0)
+    margin = int(math.ceil(3 * sigma)) + 2
+    corners = np.array([[0, 0, 1], [out_w, 0, 1], [0, out_h, 1], [out_w, out_h, 1]], float)
+    src = corners @ np.linalg.inv(m).T
+    src = src[:, :2] / src[:, 2:3]
+    if not np.all(np.isfinite(src)):
+        raise np.linalg.LinAlgError("the map sends the output region to infinity")
+    x0 = int(np.clip(np.floor(src[:, 0].min()) - margin, 0, width))
+    x1 = int(np.clip(np.ceil(src[:, 0].max()) + margin, 0, width))
+    y0 = int(np.clip(np.floor(src[:, 1].min()) - margin, 0, height))
+    y1 = int(np.clip(np.ceil(src[:, 1].max()) + margin, 0, height))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return np.zeros((out_h, out_w), np.float32), np.zeros((out_h, out_w), bool)
+    crop = np.asarray(image[y0:y1, x0:x1], np.float32)
+    if level > 0:
+        crop = cv2.GaussianBlur(crop, (0, 0), sigma)
+    mc = m @ np.array([[1, 0, x0], [0, 1, y0], [0, 0, 1.0]])
+    out = cv2.warpPerspective(crop, mc, (out_w, out_h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # covered: the output pixels whose source lies inside the image (not only inside the crop)
+    ones = np.ones((y1 - y0, x1 - x0), np.float32)
+    inside = cv2.warpPerspective(ones, mc, (out_w, out_h), flags=cv2.INTER_NEAREST,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.5
+    return out, inside
