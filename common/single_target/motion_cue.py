@@ -186,12 +186,12 @@ class MotionCue:
 def _warped(image: np.ndarray, m: np.ndarray, level: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """``image`` mapped by ``m`` (its pixels -> output pixels) onto an output of ``size``, float32, and
     the output pixels the image covers. Only the part of ``image`` that maps into the output is
-    read; at pyramid ``level`` > 0 it is blurred for that level first (no aliasing at the analysis
-    resolution)."""
+    read, taken down ``level`` Gaussian pyramid levels first (``m`` maps full-resolution pixels:
+    no aliasing at the analysis resolution)."""
     height, width = image.shape[:2]
     out_w, out_h = size
-    sigma = 0.5 * math.sqrt(4.0 ** level - 1.0)
-    margin = int(math.ceil(3 * sigma)) + 2
+    step = 2 ** level
+    margin = (3 * step if level else 0) + 2  # the pyramid's 5-tap kernels at every level
     corners = np.array([[0, 0, 1], [out_w, 0, 1], [0, out_h, 1], [out_w, out_h, 1]], float)
     src = corners @ np.linalg.inv(m).T
     src = src[:, :2] / src[:, 2:3]
@@ -201,15 +201,14 @@ def _warped(image: np.ndarray, m: np.ndarray, level: int, size: tuple[int, int])
     x1 = int(np.clip(np.ceil(src[:, 0].max()) + margin, 0, width))
     y0 = int(np.clip(np.floor(src[:, 1].min()) - margin, 0, height))
     y1 = int(np.clip(np.ceil(src[:, 1].max()) + margin, 0, height))
-    if x1 - x0 < 2 or y1 - y0 < 2:
+    if x1 - x0 < 2 * step or y1 - y0 < 2 * step:
         return np.zeros((out_h, out_w), np.float32), np.zeros((out_h, out_w), bool)
     crop = np.asarray(image[y0:y1, x0:x1], np.float32)
-    if level > 0:
-        crop = cv2.GaussianBlur(crop, (0, 0), sigma)
-    mc = m @ np.array([[1, 0, x0], [0, 1, y0], [0, 0, 1.0]])
+    for _ in range(level):
+        crop = cv2.pyrDown(crop)  # pixel u of the level is pixel 2u of the one below
+    mc = m @ np.array([[step, 0, x0], [0, step, y0], [0, 0, 1.0]])
     out = cv2.warpPerspective(crop, mc, (out_w, out_h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     # covered: the output pixels whose source lies inside the image (not only inside the crop)
-    ones = np.ones((y1 - y0, x1 - x0), np.float32)
-    inside = cv2.warpPerspective(ones, mc, (out_w, out_h), flags=cv2.INTER_NEAREST,
+    inside = cv2.warpPerspective(np.ones(crop.shape[:2], np.float32), mc, (out_w, out_h), flags=cv2.INTER_NEAREST,
                                  borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.5
     return out, inside
