@@ -144,9 +144,10 @@ class MotionCueSettings(BaseModel):
     """D, the time between the frames differenced (the current frame against D and 2 D before): a car
     at an urban 10 m/s moves about a quarter of its 4.5 m length in 0.1 s, enough for its edges to
     show, little enough for the difference to stay on it."""
-    z_cap: float = Field(6.0, gt=0)
-    """The largest robust z-score of a box's motion energy that counts (a Gaussian tail of 1e-9,
-    log ratio 20.5): beyond it a real background's tail is heavier than a Gaussian's."""
+    z_cap: float = Field(5.0, gt=0)
+    """The largest robust z-score of a box's motion energy that counts: five sigma (a Gaussian tail of
+    3e-7, log ratio 14.4), the usual bar for a detection; beyond it the background's tail is not
+    known well enough (a real one is heavier than a Gaussian's) for more evidence to count."""
     region_lengths: float = Field(6.0, gt=0)
     """Half the side of the square about the last estimate where the energy and its background
     statistics are taken, in target lengths."""

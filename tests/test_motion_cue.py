@@ -70,9 +70,10 @@ def test_the_mover_is_lit_and_the_ground_is_not():
     cue = cue_after(frames)
     c = np.array(frames[-1][1])
     step = np.array([5.0, 1.5]) * 3  # the patch's motion over D
-    lr = cue.log_ratio(np.array([c, c - step, c - 2 * step, c + [60.0, -40.0]]))
-    assert lr[0] == pytest.approx(CAP)  # at the cap: z >= 6
-    assert lr[1] < 0.25 * CAP and lr[2] < 0.35 * CAP and lr[3] < 1.0, lr
+    pts = np.array([c, c - step, c - 2 * step, c + [60.0, -40.0]])
+    z, lr = cue.z_scores(pts), cue.log_ratio(pts)
+    assert z[0] > 2 * CFG.z_cap and lr[0] == pytest.approx(CAP)  # far beyond the cap
+    assert z[1] < 2.0 and z[2] < 3.5 and abs(z[3]) < 1.0, z  # the ghosts well below five sigma
     assert cue.frames_with_cue >= 8  # from the third frame on
 
 
