@@ -126,6 +126,24 @@ def test_benchmark_end_to_end(sequence, tmp_path, capsys):
     assert json.loads((out / "benchmark.json").read_text())["sequences"][0]["trackers"] == row["trackers"]
 
 
+def test_benchmark_over_seeds(sequence, tmp_path, capsys):
+    """--seeds 3: PolarTrack's figures are the mean of its three seeds' (listed under 'seeds'), the
+    first seed's run is the one --seed alone gives, and the seeds' runs differ (a real spread)."""
+    base = ["benchmark", str(sequence), "--json", "--frames", "8", "--no-progress", "--set", "rbpf.n_particles=20"]
+    assert main([*base, "--out", str(tmp_path / "a"), "--seed", "4", "--seeds", "3"]) == 0
+    pt = json.loads(capsys.readouterr().out)["sequences"][0]["trackers"]["polartrack"]
+    assert [r["seed"] for r in pt["seeds"]] == [4, 5, 6]
+    for key in ("precision20", "auc50", "success_auc", "mean_err"):
+        assert pt[key] == pytest.approx(np.mean([r[key] for r in pt["seeds"]]), abs=1e-4)
+    assert len({r["mean_err"] for r in pt["seeds"]}) > 1
+    assert main([*base, "--out", str(tmp_path / "b"), "--seed", "4"]) == 0
+    one = json.loads(capsys.readouterr().out)["sequences"][0]["trackers"]["polartrack"]
+    assert "seeds" not in one and one["mean_err"] == pt["seeds"][0]["mean_err"]
+    with pytest.raises(SystemExit) as exc:
+        main([*base, "--seeds", "0"])
+    assert exc.value.code == 2 and "--seeds" in capsys.readouterr().err
+
+
 def test_benchmark_table(sequence, tmp_path, capsys):
     """Two sequences (the same folder twice): a row per sequence and tracker, and the mean."""
     assert main(["benchmark", str(sequence), str(sequence), "--out", str(tmp_path), "--frames", "3", "--no-progress"]) == 0

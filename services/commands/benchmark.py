@@ -63,6 +63,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--filter", default="rbpf", choices=["rbpf", "sir", "ml"], help="PolarTrack's filter")
     p.add_argument("--particles", type=positive_int, metavar="N", help="number of particles (rbpf, sir)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the filter's random generator")
+    p.add_argument("--seeds", type=positive_int, default=1, metavar="N",
+                   help="run PolarTrack with N seeds (--seed, --seed + 1, ...) and report each sequence's "
+                        "mean over them, with every seed's figures under 'seeds' (the plots: the first seed)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                    help="override a tracker setting by its dotted name (repeatable), as on track and eval")
     p.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
@@ -174,12 +177,15 @@ def run(args: argparse.Namespace) -> int:
     quiet = args.no_progress
     for spec, source, init, settings in tqdm(sequences, unit="seq", desc="benchmark", disable=quiet, file=sys.stderr):
         truth = as_boxes(source.truth)
-        with tqdm(total=len(source), unit="frame", desc=f"{source.name} polartrack", disable=quiet,
+        seeded = []  # (boxes, elapsed, re-acquisition statistics) per seed
+        with tqdm(total=len(source) * args.seeds, unit="frame", desc=f"{source.name} polartrack", disable=quiet,
                   file=sys.stderr, leave=False) as bar:
-            try:
-                boxes, elapsed, reacq = run_polartrack(source, init, settings, bar)
-            except (InitError, SourceError) as exc:
-                raise UsageError(f"{spec}: {exc}") from None
+            for seed in range(args.seed, args.seed + args.seeds):
+                try:
+                    seeded.append(run_polartrack(source, init, settings.model_copy(update={"seed": seed}), bar))
+                except (InitError, SourceError) as exc:
+                    raise UsageError(f"{spec}: {exc}") from None
+        boxes, elapsed, reacq = seeded[0]
         runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 else float("nan"))}
         failures = {}  # a peer's frames where OpenCV reported failure (it kept its last box there)
         if prefix is not None:
@@ -202,6 +208,13 @@ def run(args: argparse.Namespace) -> int:
             curves["success"].setdefault(name, []).append(sc.success)
         if reacq is not None:
             results["polartrack"]["reacquisition"] = reacq
+        if args.seeds > 1:
+            per_seed = []
+            for seed, (b, el, _) in zip(range(args.seed, args.seed + args.seeds), seeded):
+                sc = scores["polartrack"] if seed == args.seed else score_boxes(b, truth)
+                per_seed.append({"seed": seed, **sc.as_dict(), "fps": round(len(source) / el, 1) if el > 0 else None})
+            results["polartrack"] = {**results["polartrack"], **mean_scores(per_seed), "seeds": per_seed}
+            del results["polartrack"]["sequences"]
         plot = out_dir / f"errors-{source.name}.png"
         visible = ~np.isnan(truth).any(axis=1)
         plot_errors_over_time({n: sc.errors for n, sc in scores.items()}, visible, plot,
@@ -220,7 +233,10 @@ def run(args: argparse.Namespace) -> int:
                                "success_auc": "mean over IoU thresholds 0, 0.05, ..., 1 of the fraction of "
                                               "scored frames with IoU above the threshold (OTB)",
                                "frames_lost": "scored frames whose box does not overlap the truth (IoU = 0)",
-                               "mean": "mean over sequences, each weighing the same"}}
+                               "mean": "mean over sequences, each weighing the same",
+                               "seeds": "with --seeds N, PolarTrack's figures per sequence are the mean "
+                                        "over its N seeds (each seed's under 'seeds'); the plots show the "
+                                        "first seed"}}
     if opencv is not None:
         summary["opencv"] = opencv
     (out_dir / "benchmark.json").write_text(json.dumps(summary, indent=1))
