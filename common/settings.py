@@ -132,8 +132,8 @@ class ReacquisitionSettings(BaseModel):
 
 class MotionCueSettings(BaseModel):
     """The moving-target cue of stabilised runs (see :mod:`common.single_target.motion_cue`): the
-    motion energy of the stabilised frames' double difference, an independent likelihood ratio for
-    the visible target."""
+    motion energy of the stabiliser's double difference, an independent likelihood ratio for the
+    target's position."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 

@@ -44,9 +44,11 @@ class FrameObservation(Protocol):
 
 
 class CuedObservation:
-    """A :class:`FrameObservation` with an independent cue: ``cue(image_xy) -> (N,)`` log likelihood
-    ratios for a visible target at those image points, which the particle filters add to log
-    l(V = 1) (:func:`cue_log_ratio`). Everything else is ``base``'s."""
+    """A :class:`FrameObservation` with an independent cue on the target's position: ``cue(image_xy)
+    -> (N,)`` log likelihood ratios for the target at those image points, which the particle
+    filters add to each particle's log likelihood under both visibility hypotheses (it moves
+    weight between places, not between "seen" and "hidden"; :func:`cue_log_ratio`). Everything
+    else is ``base``'s."""
 
     def __init__(self, base, cue):
         self.base = base
@@ -60,8 +62,8 @@ class CuedObservation:
 
 
 def cue_log_ratio(observation, image_xy: np.ndarray) -> np.ndarray | None:
-    """The observation's independent cue at ``image_xy`` (N, 2): (N,) log ratios to add to log
-    l(V = 1) (non-finite values count as 0, no evidence), or None when it has no cue."""
+    """The observation's independent cue at ``image_xy`` (N, 2): (N,) log ratios to add to each
+    particle's log likelihood (non-finite values count as 0, no evidence), or None when it has no cue."""
     f = getattr(observation, "cue_log_ratio", None)
     if f is None:
         return None

@@ -11,8 +11,8 @@ One step, from t-1 to t with T = t - (t-1) from the timestamps (prior proposal):
     theta_{t,p} ~ N(theta_{t-1,p}, q_theta)                        (eq. 10)
     pi^-_p(j)   = sum_i A[i, j] pi_p(i)                            (eq. 25 / A.3)
     l_p(v)      = p(Z_t | S^N_{t,p}, V_t = v)                      (eqs. 15-16, or Nelson eq. 15)
-                  (times r_p for v = 1 when the observation carries an independent cue: the
-                  moving-target cue of real footage, common.single_target.motion_cue)
+                  (times r_p for both v when the observation carries an independent cue on the
+                  position: the moving-target cue of real footage, common.single_target.motion_cue)
     m_p         = sum_v l_p(v) pi^-_p(v)                           (eq. 25 / A.4)
     pi_p(v)     = l_p(v) pi^-_p(v) / m_p                           (A.3)
     w_{t,p}     ∝ w_{t-1,p} m_p                                    (eq. 24 with q = prior)
@@ -240,10 +240,10 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         integrates theta over its random-walk step (see orientation_proposal)."""
         cfg = self.config
         n = self.n_particles
-        log_pv = self.log_pv  # log pi^-_p(v), with an independent cue's log r_p on v = 1
+        log_pv = self.log_pv  # log pi^-_p(v), times an independent cue's r_p (both v: see the docstring)
         cue = cue_log_ratio(observation, image_xy)
         if cue is not None:
-            log_pv = log_pv + np.stack([np.zeros(n), cue], axis=1)
+            log_pv = log_pv + cue[:, None]
         if cfg.orientation_proposal == "prior":
             hyps = np.column_stack([image_xy, self.particles[:, 4]])
             scores, _ = sanitise_scores(*observation.score_at(hyps), n)

@@ -85,9 +85,9 @@ class SIRParticleFilter(ParticleFilter):
         if scored is not None:
             scores, _valid = scored
             ll = cfg.likelihood.log_likelihood(scores)  # (N, 2), columns V = 0, 1
-            cue = cue_log_ratio(observation, image_xy)  # an independent cue's log ratio for V = 1
+            cue = cue_log_ratio(observation, image_xy)  # an independent cue on the position (both V)
             if cue is not None:
-                ll[:, 1] += cue
+                ll = ll + cue[:, None]
             log_lik = self._normalise(self.log_w + ll[np.arange(self.n_particles), self.visible], image_xy, observation)
 
         return self._finish(frame_time, observation is not None, image_xy, self.visible.astype(float), log_lik,
