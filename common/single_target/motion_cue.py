@@ -58,9 +58,10 @@ pixel, a moving target's difference is coherent over many."""
 _RELATIVE_FLOOR = 0.25
 """Smallest robust spread of the box energies as a fraction of their median: a box must exceed the
 region's typical energy by a good part of it, not only by many sigmas of a spread that averaging
-over the box has made tiny (a quiet, exactly stabilised background). Half: where only one of the
-two differences is noise (the ground a mover has just left), the minimum of the two is about 1.5
-times the background's minimum of two noises, which must not count."""
+over the box has made tiny (a quiet, exactly stabilised background): where only one of the two
+differences is noise (the ground a mover has just left), the minimum of the two is about 1.5 times
+the background's minimum of two noises. A quarter keeps such a ghost below about 2.5 sigma on the
+generated scenes of the tests; half lost truck4 and S1001 (docs/real-footage.md)."""
 _MAD_FLOOR = 0.25
 """... and in grey levels: a flat, noiseless region must not turn rounding into a large z."""
 
@@ -185,7 +186,8 @@ class MotionCue:
         return np.where(np.isfinite(z), z, 0.0)
 
     def log_ratio(self, image_xy: np.ndarray) -> np.ndarray:
-        """log r per hypothesis (image pixels): the cue's likelihood ratio for V = 1 (0: no evidence)."""
+        """log r per hypothesis (image pixels): the cue's likelihood ratio for the target's position
+        there (0: no evidence)."""
         z = np.clip(self.z_scores(image_xy), 0.0, self.cfg.z_cap)
         return -(norm.logsf(z) + math.log(2.0))
 

@@ -2,7 +2,8 @@
 
 :class:`Tracker` is the single-target tracker every way of running uses: the filter with its
 template and the per-frame mechanisms (stabilisation, matching at the target's scale, template
-adaptation, turning the particles with the camera), each switched in the settings. What needs
+adaptation, turning the particles with the camera, the moving-target cue), each switched in the
+settings. What needs
 the frame's pixels and the template goes through a detector client
 (:mod:`common.detector.client`): in-process here (``track_frames``), queries to the detector
 service in the tracker service, recorded replies on offline replay. The same source, seed and
@@ -117,8 +118,8 @@ class Tracker:
     """A filter with its template: ``step(frame) -> TrackState`` for frames in source order.
 
     Per frame, before the filter step: the camera motion (stabiliser, for sources without a
-    homography), the camera's rotation of the particles' orientation, and the matching scale;
-    after it: the scale search and the template adaptation (each switched in the settings).
+    homography), the camera's rotation of the particles' orientation, the matching scale and the
+    moving-target cue on the observation; after it: the scale search and the template adaptation (each switched in the settings).
 
     A frame is anything with ``index``, ``time``, ``homography``, ``size`` and, when stabilising,
     ``image`` (:class:`common.sources.Frame`; :class:`common.msgs.convert.InfoFrame` on the bus).

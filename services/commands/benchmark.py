@@ -213,8 +213,8 @@ def run(args: argparse.Namespace) -> int:
             for seed, (b, el, _) in zip(range(args.seed, args.seed + args.seeds), seeded):
                 sc = scores["polartrack"] if seed == args.seed else score_boxes(b, truth)
                 per_seed.append({"seed": seed, **sc.as_dict(), "fps": round(len(source) / el, 1) if el > 0 else None})
-            results["polartrack"] = {**results["polartrack"], **mean_scores(per_seed), "seeds": per_seed}
-            del results["polartrack"]["sequences"]
+            means = {k: v for k, v in mean_scores(per_seed).items() if k != "sequences"}
+            results["polartrack"] = {**results["polartrack"], **means, "seeds": per_seed}
         plot = out_dir / f"errors-{source.name}.png"
         visible = ~np.isnan(truth).any(axis=1)
         plot_errors_over_time({n: sc.errors for n, sc in scores.items()}, visible, plot,
