@@ -23,8 +23,10 @@ def _track(src, settings):
         s = tracker.step(f)
         c = f.truth.centre
         err = np.nan if c is None else float(np.hypot(s.map_estimate.image_x - c[0], s.map_estimate.image_y - c[1]))
+        lost = tracker.reacquirer is not None and tracker.reacquirer.lost
         rows.append((err, s.reacquired, tracker.scale.target_length_px,
-                     max(f.truth.box[2:]) if f.truth.box else np.nan, s.axis_aligned_box(), f.truth.box))
+                     max(f.truth.box[2:]) if f.truth.box else np.nan, s.axis_aligned_box(), f.truth.box,
+                     lost, (s.map_estimate.image_x, s.map_estimate.image_y)))
     return tracker, rows
 
 
@@ -61,6 +63,13 @@ def test_target_leaving_and_returning_is_reacquired(exit_source):
     assert relocks and whole <= relocks[0] <= whole + 30
     assert np.all(err[relocks[0]:] < 3.0)
     assert tracker.reacquirer.detections == 1
+    # while lost the estimate stays in the frame (the filter's MAP there, else where the target was
+    # last held): the target left by the right edge, and nothing is reported beyond the frame
+    lost = [i for i, r in enumerate(rows) if r[6]]
+    assert len(lost) > 10
+    xy = np.array([rows[i][7] for i in lost])
+    assert np.all(xy[:, 0] > 1280 - 4 * SUPPORT_RADIUS_PX) and np.all(xy[:, 0] <= 1279)
+    assert np.all((xy[:, 1] >= 0) & (xy[:, 1] <= 719))
 
     off = st.model_copy(update={"reacquisition": st.reacquisition.model_copy(update={"enabled": False})})
     _, rows_off = _track(src, off)
@@ -126,6 +135,52 @@ def test_lost_after_the_stated_seconds_whatever_the_frame_rate(fps):
     r2 = Reacquirer(ReacquisitionSettings(enabled=True, lost_after_s=0.0), (0.25, 8.08), (640, 480))
     r2.observe(0.0, _state(0.0, 1.0, x=700.0), 1.0)
     assert r2.lost
+
+
+@pytest.mark.parametrize("outside", [True, False])
+def test_a_lost_track_reports_where_it_was_last_held_not_the_drifting_cloud(exit_source, outside):
+    """Once the filter's cloud has left the frame, the estimate is the point where the target was
+    last held (carried with the camera: this scene's camera is still), at rest; with the cloud on
+    the target (negative control), the filter's MAP, lost or not."""
+    src = exit_source
+    st = profile_for(src)
+    f0 = src.frame(0)
+    tracker = Tracker.start(f0, f0.truth.box, st)
+    tracker.step(f0)
+    r = tracker.reacquirer
+    r.lost, r.last_held, r.last_theta = True, (300.0, 200.0), 15.0
+    if outside:
+        tracker.filter.particles[:, 0] -= 1000.0  # world unit: the target's length; far to the left
+    f1 = src.frame(1)
+    s = tracker.step(f1)
+    xy = (s.map_estimate.image_x, s.map_estimate.image_y)
+    if outside:
+        assert xy == pytest.approx((300.0, 200.0), abs=0.5)
+        assert s.mmse_estimate == s.map_estimate and s.speed == 0.0 and s.orientation == 15.0
+    else:
+        assert np.hypot(xy[0] - f1.truth.centre[0], xy[1] - f1.truth.centre[1]) < 3.0
+
+
+def test_last_held_point_is_carried_with_the_camera_and_kept_in_the_frame():
+    r = Reacquirer(ReacquisitionSettings(enabled=True, lost_after_s=0.0), (0.25, 8.08), (640, 480))
+    r.carry(np.eye(3))
+    assert r.last_held is None  # nothing held yet: nothing to carry
+    r.observe(0.0, _state(0.0, 1.0, x=100.0, y=200.0), 1.0)
+    assert r.last_held == (100.0, 200.0)
+    shift = np.array([[1.0, 0, 30], [0, 1, -50], [0, 0, 1]])
+    r.carry(shift)
+    assert r.last_held == pytest.approx((130.0, 150.0))
+    r.carry(None)  # the camera did not move
+    assert r.last_held == pytest.approx((130.0, 150.0))
+    r.carry(np.array([[2.0, 0, 0], [0, 2, 0], [0, 0, 1]]))  # zoom in about the corner
+    assert r.last_held == pytest.approx((260.0, 300.0))
+    r.carry(np.array([[1.0, 0, 1000], [0, 1, -1000], [0, 0, 1]]))  # the camera turns away: the edge
+    assert r.last_held == pytest.approx((639.0, 0.0))
+    r.carry(np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 0]]))  # to infinity: stays
+    assert r.last_held == pytest.approx((639.0, 0.0))
+    # a frame that is not held does not move it
+    r.observe(0.1, _state(0.1, 0.1, x=10.0, y=10.0), 1.0)
+    assert r.lost and r.last_held == pytest.approx((639.0, 0.0))
 
 
 def test_sweep_scales_alternate_about_the_last_held_one():

@@ -10,6 +10,11 @@ confident detection to restart the filter on.
   ``lost_p_visible`` or the estimate lies outside the frame. Seconds, not frames: the same at
   10 fps and at 30 fps. While the target is held nothing is searched, so a look-alike elsewhere
   in the frame cannot capture the track.
+- **Where it was last held** (``last_held``, with its scale and orientation) is carried with the
+  camera from frame to frame (:meth:`Reacquirer.carry`): the ground point where the target was
+  last seen, in this frame's pixels (at the frame's edge once the camera has turned away from
+  it). The search starts from it, and once the filter's cloud has left the frame (nothing holds
+  it there: it drifts on at its last velocity) the tracker reports it as the estimate.
 - **Search** (only while lost): the frame is cut into square tiles of ``tile_px`` matched pixels
   (the resampled image the template is matched on), overlapping by a target length, visited
   nearest-first from where the target was last held, then in a stride that does not chase a
@@ -71,7 +76,9 @@ class Reacquirer:
         self.lost = False
         self._below_since: float | None = None
         self.last_held: tuple[float, float] | None = None
+        """Where the target was last held for good, this frame's pixels (carried with the camera)."""
         self.last_scale = 1.0
+        self.last_theta = 0.0
         self._tile = 0
         self._sweep = 0
         self._last_time: float | None = None
@@ -90,6 +97,19 @@ class Reacquirer:
                 "ms_per_searched_frame": round(1e3 * self.seconds / self.searches, 2) if self.searches else 0.0}
 
     # -- the lost state -------------------------------------------------------------------------
+    def carry(self, m: np.ndarray | None) -> None:
+        """Carry ``last_held`` into the next frame by ``m`` (previous image pixels -> this frame's; None:
+        the camera did not move), kept inside the frame: a homography fitted to the frame's own
+        features says little of points beyond it (its perspective terms grow without bound there), and
+        the frame's edge is the nearest place the target can be seen again. A point the map sends to
+        infinity stays where it was."""
+        if m is None or self.last_held is None:
+            return
+        p = np.asarray(m, float) @ np.array([self.last_held[0], self.last_held[1], 1.0])
+        if p[2] != 0 and np.all(np.isfinite(p)):
+            w, h = self.size
+            self.last_held = (float(np.clip(p[0] / p[2], 0, w - 1)), float(np.clip(p[1] / p[2], 0, h - 1)))
+
     def observe(self, time: float, state, scale: float) -> None:
         """Update the lost state from this frame's posterior ``state`` (after the filter step).
 
@@ -110,6 +130,7 @@ class Reacquirer:
                 self._searching = False
                 self.last_held = (float(m.image_x), float(m.image_y))
                 self.last_scale = float(scale)
+                self.last_theta = float(m.theta)
             return
         self._held_since = None
         if self._below_since is None:

@@ -31,7 +31,7 @@ from common.single_target.stabilise import CameraMotionEstimator
 from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world
 from common.tracking.motion import NearConstantVelocity
-from common.tracking.state import InitError
+from common.tracking.state import Estimate, InitError
 from common.tracking.observation import CuedObservation, ObservationUnavailable
 
 
@@ -98,6 +98,19 @@ def _background_beta(settings: TrackerSettings) -> tuple[float, float]:
     if isinstance(lik, BetaRatioLikelihood):
         return (float(lik.a0), float(lik.b0))
     return (SYNTHETIC_BETA["a0"], SYNTHETIC_BETA["b0"])
+
+
+def _interframe(h_prev: np.ndarray | None, h_cur: np.ndarray | None) -> np.ndarray | None:
+    """The map from the previous frame's pixels to this frame's, from the two world -> image
+    homographies (None: identity)."""
+    if h_prev is None and h_cur is None:
+        return None
+    prev = np.eye(3) if h_prev is None else np.asarray(h_prev, float)
+    cur = np.eye(3) if h_cur is None else np.asarray(h_cur, float)
+    try:
+        return cur @ np.linalg.inv(prev)
+    except np.linalg.LinAlgError:
+        return None
 
 
 def _rotation_deg(j: np.ndarray) -> float:
@@ -219,6 +232,8 @@ class Tracker:
                 rot = _rotation_deg(j_cur @ np.linalg.inv(j_prev))
                 if np.isfinite(rot) and rot != 0.0:
                     particles[:, 4] = wrap_degrees(particles[:, 4] + rot)
+        if self.frames > 0 and self.reacquirer is not None:
+            self.reacquirer.carry(_interframe(self.homography, h))
         if self.frames > 0:
             # the camera's zoom at the target is read where the target is: not at an estimate that has
             # left the frame (the homography extrapolated there), nor while the target is lost
@@ -248,17 +263,47 @@ class Tracker:
                 self.reacquirer.relocked(det)
             self.reacquirer.observe(frame.time, state, self.scale.s)
         self.last_state = state
+        old_world = self._first_h if self.homography is None else self.homography
         self.homography = None if h is None else np.asarray(h, float)
         if self._local:
             # carry the particles into this frame's pixels, in the target's (new) length
             length = self.scale.target_length_px
             anchor = np.diag([length, length, 1.0])
-            self._reanchor(np.linalg.inv(anchor) @ self.homography)
+            w, hgt = frame.size
+            corners = image_to_world(old_world, np.array([[0.0, 0.0], [w - 1.0, hgt - 1.0]]))
+            self._reanchor(np.linalg.inv(anchor) @ self.homography, corners.min(axis=0), corners.max(axis=0))
             self.homography = anchor
+        held_point = self._left_the_frame(state, frame.size)
+        if held_point:
+            state = self._holding(state)
+            self.last_state = state
         img = np.array([state.map_estimate.image_x, state.map_estimate.image_y])
         self._world_xy = image_to_world(self.homography, img)
-        self._adapt(frame, state)
+        if not held_point:
+            self._adapt(frame, state)
         return state
+
+    def _left_the_frame(self, state: TrackState, size: tuple[int, int]) -> bool:
+        """Whether the filter's MAP has left the frame of a track that was held before (see :meth:`_holding`)."""
+        r = self.reacquirer
+        if r is None or r.last_held is None:
+            return False
+        m = state.map_estimate
+        return not (0 <= m.image_x < size[0] and 0 <= m.image_y < size[1])
+
+    def _holding(self, state: TrackState) -> TrackState:
+        """``state`` with the estimates replaced by where the target was last held, carried with the
+        camera (:meth:`Reacquirer.carry`), at rest, once the filter's MAP has left the frame (a frame
+        that does not hold the target, :meth:`Reacquirer.observe`). Only then: inside the frame the cloud can still follow the target on its motion
+        and the moving-target cue (uav123-truck4's last 40 frames, where the template no longer
+        matches: p(V=1|Z) is 0 but the MAP stays within a few target lengths); outside it nothing
+        holds the cloud, which drifts on at its last velocity."""
+        r = self.reacquirer
+        xy = np.asarray(r.last_held, float)
+        wx, wy = image_to_world(self.homography, xy)
+        held = Estimate(x=float(wx), y=float(wy), vx=0.0, vy=0.0, theta=r.last_theta,
+                        image_x=float(xy[0]), image_y=float(xy[1]))
+        return replace(state, map_estimate=held, mmse_estimate=held, speed=0.0, orientation=r.last_theta)
 
     def _with_motion_cue(self, frame: Frame, obs, det: Detection | None) -> CuedObservation:
         """``obs`` with the moving-target cue of this frame (:mod:`common.single_target.motion_cue`),
@@ -297,14 +342,18 @@ class Tracker:
         self.filter.restart(initial)
         return det
 
-    def _reanchor(self, m: np.ndarray) -> None:
+    def _reanchor(self, m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
         """Move the particles to a new world frame: positions through ``m`` (old world -> new
-        world), velocities through its Jacobian."""
+        world), velocities through its Jacobian. ``m`` is fitted to the frame's features, the old
+        world's box ``lo``-``hi``: a particle beyond it moves by ``m``'s first-order expansion at the
+        box's nearest point (the camera's local motion at the frame's edge), not by ``m`` itself, whose
+        perspective terms grow without bound away from the frame."""
         p = self.filter.particles
         pos = p[:, [0, 2]]
-        jac = homography_jacobian(m, pos)
+        near = np.clip(pos, lo, hi)
+        jac = homography_jacobian(m, near)
         vel = np.einsum("nij,nj->ni", jac, p[:, [1, 3]])
-        new = apply_homography(m, pos)
+        new = apply_homography(m, near) + np.einsum("nij,nj->ni", jac, pos - near)
         ok = np.all(np.isfinite(new), axis=1) & np.all(np.isfinite(vel), axis=1)
         p[ok, 0], p[ok, 2] = new[ok, 0], new[ok, 1]
         p[ok, 1], p[ok, 3] = vel[ok, 0], vel[ok, 1]
