@@ -128,6 +128,12 @@ class ReacquisitionSettings(BaseModel):
     can follow."""
     assumed_interval_s: float = Field(0.1, gt=0)
     """Frame interval assumed for the threshold on the first search (later: the measured one)."""
+    motion_search: bool = True
+    """Where the tracker has the moving-target cue, look first for the frame's strongest mover each
+    searched frame (a target that comes back looking different still moves over the ground)."""
+    mover_tail_quantile: float = Field(0.9, gt=0.5, lt=1)
+    """The movers' background tail is fitted beyond this quantile of the boxes' motion z-scores (an
+    exponential tail over the threshold, as in peaks-over-threshold extreme-value fits)."""
 
 
 class MotionCueSettings(BaseModel):

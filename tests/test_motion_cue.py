@@ -208,3 +208,40 @@ def test_a_small_car_over_textured_ground_is_held_with_the_cue_and_lost_without(
         assert np.median(off[-30:]) > 40.0, (seed, off[-30:].round(1))
         held.append(np.median(on[-30:]) < 12.0 and on.max() < 25.0)
     assert sum(held) >= 2, held
+
+
+@pytest.mark.parametrize("size, box", [((10, 7), (10, 7)), ((30, 20), (10, 7))])
+def test_movers_over_the_whole_frame_and_the_blob_gives_the_scale(size, box):
+    """The re-acquisition's whole-frame movers: the strongest box is the mover (far beyond the
+    background's tail over the whole frame); the blob it lies in spans the target (and its motion
+    smear), so its scale is the target's or up to twice it, never below. ``box`` is the first box
+    the cue was made for: a target three times that is read as three times."""
+    from common.single_target.reacquire import tail_probability
+
+    frames = scene(10, speed=5.0, size=size, contrast=40.0)
+    cue = cue_after(frames, size=box)
+    true_scale = max(size) / max(box)
+    xy, z = cue.movers(true_scale)
+    top = int(np.argmax(z))
+    c = np.array(frames[-1][1])
+    assert np.hypot(*(xy[top] - c)) < 0.8 * max(size)
+    far = np.hypot(*(xy - xy[top]).T) > max(size)
+    assert len(z) * tail_probability(z, top, far, 0.9) < 1e-4
+    assert 1.0 <= cue.blob_scale(tuple(xy[top])) / true_scale <= 2.0
+    still = cue.blob_scale((5.0, 5.0))  # the still ground: no blob, or a speck of noise
+    assert still is None or still < 0.3
+
+
+def test_no_mover_stands_out_of_a_still_scene():
+    """Negative control: the same ground with the patch stopped: the strongest box is one of the
+    background's (many expected false alarms at its z), not a detection."""
+    from common.single_target.reacquire import tail_probability
+
+    cue = cue_after(scene(10, speed=0.0))
+    xy, z = cue.movers(1.0)
+    top = int(np.argmax(z))
+    far = np.hypot(*(xy - xy[top]).T) > 10
+    assert len(z) * tail_probability(z, top, far, 0.9) > 0.1
+    # movers() replaced the tracking cue's map: prepare() restores it
+    cue.prepare(scene(10, speed=0.0)[-1][1], 1.0)
+    assert cue._stats is not None and cue._grid.shape[1] == 2

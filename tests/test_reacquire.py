@@ -8,7 +8,7 @@ import pytest
 from scipy.stats import beta
 
 from common.detector.layout import SUPPORT_RADIUS_PX
-from common.single_target.reacquire import Reacquirer, acceptance_threshold
+from common.single_target.reacquire import Reacquirer, acceptance_threshold, tail_probability
 from common.single_target.runner import Tracker
 from common.scene.events import ExitSource, ZoomSource
 from common.settings import ReacquisitionSettings, profile_for
@@ -46,8 +46,9 @@ def test_exit_source_events(exit_source):
 
 
 def test_target_leaving_and_returning_is_reacquired(exit_source):
-    """Re-acquired within 3 s (30 frames at 10 fps) of the car being wholly back in the frame, and
-    then held to within 3 px; with re-acquisition off (negative control) it is never found again."""
+    """Re-acquired within 0.5 s (5 frames at 10 fps) of the car being wholly back in the frame, by
+    the movers, and then held to within 3 px; by the tiles alone within 3 s; with re-acquisition off
+    (negative control) it is never found again."""
     src = exit_source
     st = profile_for(src)
     assert st.reacquisition.enabled
@@ -60,9 +61,11 @@ def test_target_leaving_and_returning_is_reacquired(exit_source):
     whole = next(i for i in range(src.return_frame, len(src))
                  if src.frame(i).truth.visible_fraction >= 1.0)
     relocks = [i for i, r in enumerate(rows) if r[1]]
-    assert relocks and whole <= relocks[0] <= whole + 30
-    assert np.all(err[relocks[0]:] < 3.0)
-    assert tracker.reacquirer.detections == 1
+    # the car drives back in: found as the frame's strongest mover within 5 frames of being whole
+    # in the frame (the first confirms the second), then within 3 px once the filter has settled
+    assert relocks and whole <= relocks[0] <= whole + 5
+    assert np.all(err[relocks[0] + 5:] < 3.0)
+    assert tracker.reacquirer.detections == 1 and tracker.reacquirer.mover_detections == 1
     # while lost the estimate stays in the frame (the filter's MAP there, else where the target was
     # last held): the target left by the right edge, and nothing is reported beyond the frame
     lost = [i for i, r in enumerate(rows) if r[6]]
@@ -70,6 +73,14 @@ def test_target_leaving_and_returning_is_reacquired(exit_source):
     xy = np.array([rows[i][7] for i in lost])
     assert np.all(xy[:, 0] > 1280 - 4 * SUPPORT_RADIUS_PX) and np.all(xy[:, 0] <= 1279)
     assert np.all((xy[:, 1] >= 0) & (xy[:, 1] <= 719))
+
+    # without the movers the tiled polar-match search alone finds it, later
+    tiles = st.model_copy(update={"reacquisition": st.reacquisition.model_copy(update={"motion_search": False})})
+    tracker_t, rows_t = _track(src, tiles)
+    relocks_t = [i for i, r in enumerate(rows_t) if r[1]]
+    assert relocks_t and relocks[0] < relocks_t[0] <= whole + 30
+    assert np.all(np.array([r[0] for r in rows_t])[relocks_t[0]:] < 3.0)
+    assert tracker_t.reacquirer.mover_detections == 0
 
     off = st.model_copy(update={"reacquisition": st.reacquisition.model_copy(update={"enabled": False})})
     _, rows_off = _track(src, off)
@@ -181,6 +192,96 @@ def test_last_held_point_is_carried_with_the_camera_and_kept_in_the_frame():
     # a frame that is not held does not move it
     r.observe(0.1, _state(0.1, 0.1, x=10.0, y=10.0), 1.0)
     assert r.lost and r.last_held == pytest.approx((639.0, 0.0))
+
+
+def test_tail_probability_of_the_strongest_box():
+    """Known answers: 180 boxes at z = 0 and 20 at 1.5: the 0.9 quantile u interpolates to 0.15,
+    the mean excess over it is 1.35, so P(z >= 5) = 0.1 exp(-(5 - 0.15) / 1.35); below u the
+    empirical fraction; with fewer than 20 boxes beyond u, no tail to fit (1)."""
+    z = np.concatenate([np.zeros(180), np.full(20, 1.5), [5.0]])
+    far = np.ones(len(z), bool)
+    far[-1] = False
+    assert tail_probability(z, len(z) - 1, far, 0.9) == pytest.approx(0.1 * np.exp(-(5 - 0.15) / 1.35))
+    z[-1] = 0.1  # below u: the share of the background at or above it
+    assert tail_probability(z, len(z) - 1, far, 0.9) == pytest.approx(20 / 200)
+    z2 = np.concatenate([np.zeros(190), np.full(10, 1.5), [5.0]])
+    assert tail_probability(z2, len(z2) - 1, np.r_[np.ones(200, bool), False], 0.9) == 1.0
+
+
+class _Movers:
+    """A stand-in motion cue: a grid of boxes with one mover at ``at`` (z 30) over a Gaussian
+    background (or none), its blob at scale 1."""
+
+    def __init__(self, at):
+        self.at = at
+        gx, gy = np.meshgrid(np.arange(10.0, 630, 5), np.arange(10.0, 470, 5))
+        self.xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        self.rng = np.random.default_rng(0)
+
+    def movers(self, s):
+        z = self.rng.standard_normal(len(self.xy))
+        if self.at is not None:
+            z[np.argmin(np.hypot(*(self.xy - self.at).T))] = 30.0
+        return self.xy, z
+
+    def blob_scale(self, xy):
+        return 1.0
+
+
+class _Scale:
+    """A stand-in scale tracker: a 20 px target, factor 1 / s."""
+
+    length_px = 20.0
+
+    class cfg:
+        steps_per_octave = 12
+
+    @staticmethod
+    def scale_range():
+        return (0.25, 16.0)
+
+    @staticmethod
+    def raw_factor(s):
+        return 1.0 / s
+
+
+def _grid_peaked_at(x0, y0):
+    """Scores peaked at (x0, y0), at 45 degrees, and at factor 1 (scale 1)."""
+    def grid_at(k, xy):
+        d = np.hypot(xy[:, 0] - x0, xy[:, 1] - y0)
+        scores = np.tile(np.exp(-d / 10.0 - abs(np.log(k)))[:, None], (1, 48))
+        scores[:, 6] += 0.1  # the best angle: 45 degrees
+        return scores, np.ones(len(xy), bool)
+    return grid_at
+
+
+def test_the_strongest_mover_restarts_the_filter_once_confirmed():
+    """A mover far beyond the background's tail: pending on the first searched frame, a detection
+    on the second at the matcher's best position and angle; a mover that jumps more than a target
+    length between the two frames starts over (negative control), and a frame of background alone
+    detects nothing."""
+    cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0)
+    r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r.observe(0.0, _state(0.0, 0.1), 1.0)
+    assert r.lost
+    grid = _grid_peaked_at(302.0, 201.0)
+    assert r.search(0.1, grid, _Scale, _Movers((300.0, 200.0))) is None
+    det = r.search(0.2, grid, _Scale, _Movers((305.0, 200.0)))
+    assert det is not None and r.mover_detections == 1
+    assert (det.x, det.y) == pytest.approx((300.0, 200.0), abs=5.0) and det.theta_deg == 45.0 and det.scale == 1.0
+
+    flat = lambda k, xy: (np.zeros((len(xy), 48)), np.ones(len(xy), bool))  # nothing for the tiles
+    r2 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r2.observe(0.0, _state(0.0, 0.1), 1.0)
+    assert r2.search(0.1, flat, _Scale, _Movers((300.0, 200.0))) is None
+    assert r2.search(0.2, flat, _Scale, _Movers((400.0, 300.0))) is None  # jumped: pending again
+    assert r2.mover_detections == 0 and (r2._pending_mover.x, r2._pending_mover.y) == (400.0, 300.0)
+    assert r2.search(0.3, flat, _Scale, _Movers((405.0, 300.0))) is not None and r2.mover_detections == 1
+    r3 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r3.observe(0.0, _state(0.0, 0.1), 1.0)
+    for t in (0.1, 0.2, 0.3):
+        assert r3.search(t, flat, _Scale, _Movers(None)) is None
+    assert r3.mover_detections == 0 and r3._pending_mover is None
 
 
 def test_sweep_scales_alternate_about_the_last_held_one():

@@ -79,6 +79,7 @@ class MotionCue:
         self._origin = (0.0, 0.0)
         self._factor = 1.0
         self._stats: tuple[float, float] | None = None
+        self._grid = np.zeros((0, 2))
         self._scale = 1.0
         self.frames_with_cue = 0
 
@@ -86,18 +87,57 @@ class MotionCue:
                scale: float) -> None:
         """Take frame ``image`` at ``time`` with its accumulated ``homography`` (first frame's pixels ->
         this image), and prepare the cue around ``centre`` (the last estimate, image pixels) for
-        boxes of the target at scale ``scale``."""
+        boxes of the target at scale ``scale``: :meth:`push` then :meth:`prepare`."""
+        self.push(time, image, homography)
+        self.prepare(centre, scale)
+
+    def push(self, time: float, image: np.ndarray, homography: np.ndarray) -> None:
+        """Take frame ``image`` at ``time`` with its accumulated ``homography`` (first frame's pixels ->
+        this image); the cue is unprepared until :meth:`prepare`."""
         grey = image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
         self._history.append((float(time), grey, np.asarray(homography, float)))
         horizon = float(time) - 2 * self.cfg.baseline_s
         while len(self._history) > 3 and self._history[1][0] <= horizon + 1e-9:
             self._history.popleft()
         self._integral = None
+        self._stats = None
+
+    def prepare(self, centre: tuple[float, float], scale: float) -> None:
+        """Prepare the cue of the latest frame pushed around ``centre`` (image pixels) for boxes of the
+        target at scale ``scale``."""
+        self._integral = None
+        self._stats = None
         self._scale = float(scale)
-        pair = self._past_pair(float(time))
-        if pair is None or not all(math.isfinite(v) for v in centre):
+        if not self._history or not all(math.isfinite(v) for v in centre):
             return
-        self._prepare(grey, np.asarray(homography, float), pair, centre)
+        time, grey, h_now = self._history[-1]
+        pair = self._past_pair(time)
+        if pair is None:
+            return
+        length = max(self.box_size) * self._scale
+        r = self.cfg.region_lengths * length + 2 * length
+        height, width = grey.shape[:2]
+        rect = (max(0, int(centre[0] - r)), max(0, int(centre[1] - r)),
+                min(width, int(math.ceil(centre[0] + r))), min(height, int(math.ceil(centre[1] + r))))
+        if self._prepare(grey, h_now, pair, rect, margin=0.0):
+            self.frames_with_cue += 1
+
+    def movers(self, scale: float) -> tuple[np.ndarray, np.ndarray]:
+        """The whole latest frame's target-sized boxes at scale ``scale`` (half a box apart, at least a
+        box length inside the frame's edge, where the past frames' coverage ends) and the robust
+        z-score of each one's motion energy against all of them: (xy (n, 2) image pixels, z (n,));
+        empty when the history is too short. Replaces the prepared cue (call :meth:`prepare` after)."""
+        self._scale = float(scale)
+        empty = (np.zeros((0, 2)), np.zeros(0))
+        if not self._history:
+            return empty
+        time, grey, h_now = self._history[-1]
+        pair = self._past_pair(time)
+        height, width = grey.shape[:2]
+        if pair is None or not self._prepare(grey, h_now, pair, (0, 0, width, height),
+                                             margin=max(self._box())):
+            return empty
+        return self._grid, self.z_scores(self._grid)
 
     def _past_pair(self, time: float):
         """The frames about ``baseline_s`` and twice that before ``time``; before the history holds
@@ -113,18 +153,21 @@ class MotionCue:
         b = min(past, key=lambda h: abs(h[0] - (time - 2 * d)))
         return (a, b) if a is not b else None
 
-    def _prepare(self, grey: np.ndarray, h_now: np.ndarray, pair, centre) -> None:
+    def _prepare(self, grey: np.ndarray, h_now: np.ndarray, pair, rect: tuple[int, int, int, int],
+                 margin: float) -> bool:
+        """The double difference's integral image over ``rect`` (x0, y0, x1, y1) of the current image
+        and the median and spread of the target-sized boxes tiling it (``margin`` pixels inside it):
+        whether there were enough boxes."""
         cfg = self.cfg
-        height, width = grey.shape[:2]
+        self._integral = None
+        self._stats = None
         length = max(self.box_size) * self._scale
         level = max(0, int(math.ceil(math.log2(max(length / cfg.analysis_length_px, 1.0)) - 1e-9)))
         f = 0.5 ** level
-        r = cfg.region_lengths * length + 2 * length
-        x0, y0 = max(0, int(centre[0] - r)), max(0, int(centre[1] - r))
-        x1, y1 = min(width, int(math.ceil(centre[0] + r))), min(height, int(math.ceil(centre[1] + r)))
+        x0, y0, x1, y1 = rect
         out_w, out_h = int((x1 - x0) * f), int((y1 - y0) * f)
         if out_w < 8 or out_h < 8:
-            return
+            return False
         # current-image pixels -> analysis pixels
         to_out = np.array([[f, 0, -x0 * f], [0, f, -y0 * f], [0, 0, 1.0]])
         cur, _ = _warped(grey, to_out, level, (out_w, out_h))
@@ -134,26 +177,55 @@ class MotionCue:
                 m = to_out @ h_now @ np.linalg.inv(h_past)  # past image -> analysis pixels
                 w, covered = _warped(past, m, level, (out_w, out_h))
             except np.linalg.LinAlgError:
-                return
+                return False
             diffs.append(np.where(covered, np.abs(cur - w), 0.0).astype(np.float32))
         d = cv2.GaussianBlur(np.minimum(diffs[0], diffs[1]), (0, 0), _BLUR_SIGMA)
         self._integral = cv2.integral(d, sdepth=cv2.CV_64F)
+        self._diff = d
         self._origin = (float(x0), float(y0))
         self._factor = f
         # the background: boxes of the target's size tiling the region
         bw, bh = self._box()
         step = max(bw, bh) / 2  # boxes overlapping by half: the strongest box is near the peak
-        gx, gy = np.meshgrid(np.arange(x0 + bw / 2, x1 - bw / 2 + 1e-9, step),
-                             np.arange(y0 + bh / 2, y1 - bh / 2 + 1e-9, step))
-        e = self._box_means(np.stack([gx.ravel(), gy.ravel()], axis=1))
-        e = e[np.isfinite(e)]
-        if len(e) < cfg.min_boxes:
+        gx, gy = np.meshgrid(np.arange(x0 + max(bw / 2, margin), x1 - max(bw / 2, margin) + 1e-9, step),
+                             np.arange(y0 + max(bh / 2, margin), y1 - max(bh / 2, margin) + 1e-9, step))
+        grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        e = self._box_means(grid)
+        ok = np.isfinite(e)
+        if ok.sum() < cfg.min_boxes:
             self._integral = None
-            return
+            return False
+        self._grid = grid[ok]
+        e = e[ok]
         med = float(np.median(e))
         spread = max(1.4826 * float(np.median(np.abs(e - med))), _RELATIVE_FLOOR * med, _MAD_FLOOR)
         self._stats = (med, spread)
-        self.frames_with_cue += 1
+        return True
+
+    def blob_scale(self, xy: tuple[float, float]) -> float | None:
+        """The target's scale s read off the moving blob at ``xy`` (image pixels) of the map last
+        prepared: the pixels of the difference image above the map's median by three robust
+        sigmas, connected to ``xy``, span the target and, along its direction of travel, the
+        ground it crossed within the baseline; across it, the target's own extent. Their
+        bounding box's short side over the first box's short side (None: no blob there)."""
+        d = getattr(self, "_diff", None)
+        if self._integral is None or d is None:
+            return None
+        med = float(np.median(d))
+        spread = max(1.4826 * float(np.median(np.abs(d - med))), _MAD_FLOOR)
+        mask = (d > med + 3.0 * spread).astype(np.uint8)
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        f = self._factor
+        px = int(round((xy[0] - self._origin[0]) * f))
+        py = int(round((xy[1] - self._origin[1]) * f))
+        r = 3
+        window = labels[max(0, py - r):py + r + 1, max(0, px - r):px + r + 1]
+        ids = [int(i) for i in np.unique(window) if i > 0]
+        if not ids:
+            return None
+        i = max(ids, key=lambda i: stats[i, cv2.CC_STAT_AREA])
+        short = min(stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]) / f
+        return float(short / min(self.box_size))
 
     def _box(self) -> tuple[float, float]:
         return (max(self.box_size[0] * self._scale, 2.0), max(self.box_size[1] * self._scale, 2.0))

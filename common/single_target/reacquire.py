@@ -23,6 +23,22 @@ confident detection to restart the filter on.
   (every other sweep at the last held scale, the others ``scale_ratio`` smaller and larger, ...
   to ``scale_steps`` ratios either way, within the range the matching can follow). The CPU per frame is
   bounded by the tile size: one prepared ``tile_px`` square crop and its candidates.
+- **Movers** (where the tracker has the moving-target cue, :mod:`common.single_target.motion_cue`):
+  before the tiles, every searched frame, the whole frame's target-sized boxes are scored by their
+  motion energy (cheap: box sums of one difference image), at one scale of the sweep per frame.
+  The strongest mover is a candidate when the background could not produce it: the boxes away
+  from it give the background's upper tail, modelled beyond their ``mover_tail_quantile`` u as
+  exponential (peaks over a threshold: the excess over u has mean ``beta``), so P(a background
+  box >= z) = (1 - q) exp(-(z - u) / beta); over the n boxes searched the expected false alarms
+  n P must stay within ``false_alarms_per_s`` times the frame interval. Its scale: the moving
+  blob spans the target and its smear along the travel, so the blob's scale
+  (:meth:`~common.single_target.motion_cue.MotionCue.blob_scale`) is the largest the target
+  can have; the polar matcher picks the scale among it and one and two ``scale_ratio`` below,
+  and the position and angle on a grid about the mover. It must be the strongest mover again
+  on the next frame, within a target length (at that scale), before the filter restarts there.
+  On real footage the template often no longer matches a target that comes back (another view,
+  another size: uav123-car16's car scores 0.5 where the road scores 0.75, docs/real-footage.md),
+  but a car that drives still moves over the ground.
 - **Detection**: the best candidate of a tile is refined on a finer grid around it; it passes
   when its score reaches the threshold at which the background's score distribution gives
   ``false_alarms_per_s`` false detections a second over all the hypotheses searched (Bonferroni
@@ -57,6 +73,25 @@ class Detection:
     """The target's apparent scale s (relative to the first box) the detection was matched at."""
 
 
+def tail_probability(z: np.ndarray, top: int, far: np.ndarray, quantile: float) -> float:
+    """P(a background box's z-score >= ``z[top]``), the background being the boxes ``far`` (bool,
+    away from the top one): beyond their ``quantile`` u the tail is exponential with the mean excess
+    over u as its scale (peaks over a threshold, a generalised Pareto tail of shape 0). 1.0 when
+    fewer than 20 boxes exceed u (no tail to fit)."""
+    bg = np.asarray(z, float)[np.asarray(far, bool)]
+    if len(bg) == 0:
+        return 1.0
+    u = float(np.quantile(bg, quantile))
+    excess = bg[bg > u] - u
+    if len(excess) < 20:
+        return 1.0
+    zt = float(z[top])
+    if zt <= u:
+        return float(np.mean(bg >= zt))
+    beta_ = float(excess.mean())
+    return float((1.0 - quantile) * math.exp(-(zt - u) / beta_)) if beta_ > 0 else 0.0
+
+
 def acceptance_threshold(false_alarms_per_s: float, dt: float, hypotheses: int, background,
                          orientations: int = N_ROWS) -> float:
     """The score the background exceeds with probability ``false_alarms_per_s * dt / (hypotheses *
@@ -85,7 +120,10 @@ class Reacquirer:
         self._pending: tuple[Detection, float] | None = None
         self._held_since: float | None = None
         self._searching = False
+        self._mover_sweep = 0
+        self._pending_mover: Detection | None = None
         self.searches = 0
+        self.mover_detections = 0
         self.tiles = 0
         self.detections = 0
         self.seconds = 0.0
@@ -94,6 +132,7 @@ class Reacquirer:
     def stats(self) -> dict:
         """Searched frames, tiles, restarts and the search's milliseconds per searched frame."""
         return {"searched_frames": self.searches, "tiles": self.tiles, "restarts": self.detections,
+                "restarts_on_movers": self.mover_detections,
                 "ms_per_searched_frame": round(1e3 * self.seconds / self.searches, 2) if self.searches else 0.0}
 
     # -- the lost state -------------------------------------------------------------------------
@@ -138,8 +177,10 @@ class Reacquirer:
         if not self.lost and time - self._below_since >= cfg.lost_after_s - 1e-9:
             self.lost = True
             self._pending = None
+            self._pending_mover = None
             if not self._searching:
                 self._tile, self._sweep, self._searching = 0, 0, True
+                self._mover_sweep = 0
 
     def relocked(self, det: Detection) -> None:
         """The tracker restarted the filter on ``det``."""
@@ -149,14 +190,14 @@ class Reacquirer:
         self.detections += 1
 
     # -- the search -------------------------------------------------------------------------------
-    def sweep_scale(self, lo: float = 0.0, hi: float = math.inf) -> float:
+    def sweep_scale(self, lo: float = 0.0, hi: float = math.inf, counter: str = "_sweep") -> float:
         """The scale this sweep of the frame searches at: every other sweep at s0, the scale the
         target was last held at (the likeliest), the sweeps between at s0/r, s0*r, s0/r^2, ... up
         to ``scale_steps`` ratios either way, skipping scales outside [lo, hi] (the scales the
-        matching can follow)."""
+        matching can follow). ``counter`` names the sweep counter (the tiles' or the movers')."""
         count = 4 * self.cfg.scale_steps
         for _ in range(max(count, 1)):
-            n = self._sweep % count if count else 0
+            n = getattr(self, counter) % count if count else 0
             if n % 2 == 0:
                 return float(np.clip(self.last_scale, lo, hi))
             m = n // 2  # 0, 1, 2, ...: ratios -1, +1, -2, +2, ...
@@ -164,7 +205,7 @@ class Reacquirer:
             s = self.last_scale * self.cfg.scale_ratio ** j
             if lo * (1 - 1e-9) <= s <= hi * (1 + 1e-9):
                 return s
-            self._sweep += 2  # the next ratio
+            setattr(self, counter, getattr(self, counter) + 2)  # the next ratio
         return float(np.clip(self.last_scale, lo, hi))
 
     def _tiles(self, side: float, margin: float) -> list[tuple[float, float, float, float]]:
@@ -187,11 +228,13 @@ class Reacquirer:
             stride += 1
         return [tiles[(i * stride) % n] for i in range(n)]
 
-    def search(self, time: float, grid_at, scale_tracker) -> Detection | None:
+    def search(self, time: float, grid_at, scale_tracker, movers=None) -> Detection | None:
         """Search this frame; a detection confirmed on two frames in a row, or None.
 
         ``grid_at(k, xy)`` -> (scores (N, 48), valid (N,)) at factor ``k`` (the scale search's
-        one-off grids); ``scale_tracker`` gives the matching factor and the target's length.
+        one-off grids); ``scale_tracker`` gives the matching factor and the target's length;
+        ``movers(s)`` -> (xy (n, 2), z (n,)), the motion z-scores of the frame's boxes at scale s
+        (:meth:`common.single_target.motion_cue.MotionCue.movers`; None: no moving-target cue).
 
         A candidate that passes the threshold on one frame is only pending: the next frame looks
         for it again within a target length of it (at its scale) and confirms it if it passes
@@ -200,6 +243,11 @@ class Reacquirer:
         dt = cfg.assumed_interval_s if self._last_time is None else max(time - self._last_time, 1e-3)
         self._last_time = float(time)
         self.searches += 1
+        if movers is not None and cfg.motion_search:
+            det = self._search_movers(dt, grid_at, scale_tracker, movers)
+            if det is not None:
+                self._pending = None
+                return det
         pending, self._pending = self._pending, None
         if pending is not None:
             det, thr = pending
@@ -241,6 +289,61 @@ class Reacquirer:
                 best = (det, thr)
         self._pending = best
         return None
+
+    def _search_movers(self, dt: float, grid_at, scale_tracker, movers) -> Detection | None:
+        """The strongest mover of the frame, when the background's tail cannot explain it and it was
+        the strongest on the frame before too, within a target length (see the module docstring)."""
+        cfg = self.cfg
+        pending, self._pending_mover = self._pending_mover, None
+        if pending is not None:
+            s = pending.scale  # the confirming frame looks at the scale it was found at
+        else:
+            s = self.sweep_scale(*scale_tracker.scale_range(), counter="_mover_sweep")
+            self._mover_sweep += 1
+        xy, z = movers.movers(s)
+        if len(z) == 0:
+            return None
+        length = scale_tracker.length_px * s
+        top = int(np.argmax(z))
+        far = np.hypot(xy[:, 0] - xy[top, 0], xy[:, 1] - xy[top, 1]) > length
+        if len(z) * tail_probability(z, top, far, cfg.mover_tail_quantile) > cfg.false_alarms_per_s * dt:
+            return None
+        x, y = float(xy[top, 0]), float(xy[top, 1])
+        if pending is not None and math.hypot(x - pending.x, y - pending.y) <= length:
+            self.mover_detections += 1
+            return self._match_mover(grid_at, scale_tracker, x, y, [pending.scale])
+        # the scale: the blob spans the target and its motion smear (and blur), so at most the
+        # blob's; the matcher picks among the ratios below it
+        blob = movers.blob_scale((x, y))
+        top_s = s if blob is None else blob
+        lo, hi = scale_tracker.scale_range()
+        scales = sorted({float(np.clip(top_s / cfg.scale_ratio ** j, lo, hi)) for j in range(3)})
+        self._pending_mover = self._match_mover(grid_at, scale_tracker, x, y, scales)
+        return None
+
+    def _match_mover(self, grid_at, scale_tracker, x: float, y: float, scales: list[float]) -> Detection:
+        """The matcher's best (position, angle, scale) on a 5x5 grid a quarter of a target length
+        apart about the mover at ``(x, y)``, over ``scales`` (the mover's box centre is only as
+        fine as the boxes' half-box spacing); the mover itself at the first scale when the matcher
+        cannot score there."""
+        best = Detection(x, y, self.last_theta, float("nan"), float(scales[0]))
+        off = np.arange(-2, 3) * 0.25
+        gx, gy = np.meshgrid(off, off)
+        grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        grid = grid[np.argsort(np.hypot(grid[:, 0], grid[:, 1]), kind="stable")]  # ties: nearest the mover
+        for s in scales:
+            step = scale_tracker.length_px * s
+            pts = np.array([x, y]) + step * grid
+            k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
+            scores, ok = grid_at(k, pts)
+            per = np.where(np.asarray(ok, bool)[:, None], np.asarray(scores, float), -np.inf)
+            if not np.isfinite(per).any():
+                continue
+            i, a = np.unravel_index(int(np.argmax(per)), per.shape)
+            if not (per[i, a] <= best.score):  # NaN (nothing scored yet) or lower
+                best = Detection(float(pts[i, 0]), float(pts[i, 1]), float(GRID_ANGLES_DEG[a]), float(per[i, a]),
+                                 float(s))
+        return best
 
     def _refine(self, grid_at, k: float, xy: np.ndarray, maxima: np.ndarray, step: float, s: float) -> Detection:
         """The best of the ``refine_candidates`` best coarse candidates, each refined twice on a

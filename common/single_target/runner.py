@@ -244,6 +244,8 @@ class Tracker:
                 seen = False
             self.scale.predict(self.homography, h, world if seen else None, frame.time)
         self.factor = self.scale.factor()
+        if self.motion_cue is not None:
+            self.motion_cue.push(frame.time, frame.image, self.stabiliser.homography)
         det = self._search(frame, h)
         obs = self.observation(frame, h)
         if self.motion_cue is not None:
@@ -314,7 +316,7 @@ class Tracker:
             centre = (self.last_state.map_estimate.image_x, self.last_state.map_estimate.image_y)
         else:
             centre = self.template.centre  # the first frame: the first box's centre
-        self.motion_cue.update(frame.time, frame.image, self.stabiliser.homography, centre, self.scale.s)
+        self.motion_cue.prepare(centre, self.scale.s)
         return CuedObservation(obs, self.motion_cue.log_ratio)
 
     def _search(self, frame: Frame, h: np.ndarray | None) -> Detection | None:
@@ -325,7 +327,8 @@ class Tracker:
             return None
         t0 = time.perf_counter()
         try:
-            det = r.search(frame.time, lambda k, xy: self.detector.scale_grid(frame, k, xy), self.scale)
+            det = r.search(frame.time, lambda k, xy: self.detector.scale_grid(frame, k, xy), self.scale,
+                           self.motion_cue)
         except ObservationUnavailable:
             return None  # a remote detector did not answer: search again next frame
         finally:
