@@ -197,7 +197,8 @@ def test_last_held_point_is_carried_with_the_camera_and_kept_in_the_frame():
 def test_tail_probability_of_the_strongest_box():
     """Known answers: 180 boxes at z = 0 and 20 at 1.5: the 0.9 quantile u interpolates to 0.15,
     the mean excess over it is 1.35, so P(z >= 5) = 0.1 exp(-(5 - 0.15) / 1.35); below u the
-    empirical fraction; with fewer than 20 boxes beyond u, no tail to fit (1)."""
+    empirical fraction; with fewer than 20 boxes beyond u, no tail to fit (1); a frame of few
+    boxes fits from a lower quantile."""
     z = np.concatenate([np.zeros(180), np.full(20, 1.5), [5.0]])
     far = np.ones(len(z), bool)
     far[-1] = False
@@ -206,6 +207,12 @@ def test_tail_probability_of_the_strongest_box():
     assert tail_probability(z, len(z) - 1, far, 0.9) == pytest.approx(20 / 200)
     z2 = np.concatenate([np.zeros(190), np.full(10, 1.5), [5.0]])
     assert tail_probability(z2, len(z2) - 1, np.r_[np.ones(200, bool), False], 0.9) == 1.0
+    # few boxes (a large target): 30 at 0 and 20 at 1: the quantile falls to 1 - 20/50 = 0.6, u
+    # interpolates to 0.4, the mean excess is 0.6; below 40 boxes, not even the median leaves 20
+    z3 = np.concatenate([np.zeros(30), np.ones(20), [5.0]])
+    far3 = np.r_[np.ones(50, bool), False]
+    assert tail_probability(z3, 50, far3, 0.9) == pytest.approx(0.4 * np.exp(-(5 - 0.4) / 0.6))
+    assert tail_probability(z3[11:], 39, far3[11:], 0.9) == 1.0
 
 
 class _Movers:

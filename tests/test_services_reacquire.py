@@ -38,7 +38,10 @@ def test_pipeline_reacquires_like_the_in_process_tracker(reacquire_run):
     assert r.returncodes == {"ingest": 0, "tracker": 0, "viewer": None, "detector": 0, "recorder": 0}, \
         (reacquire_run["dir"] / "tracker.log").read_text()[-2000:]
     expected = reacquire_run["expected"]
-    assert sum(e.reacquired for e in expected) == 1 and reacquire_run["tracker"].reacquirer.tiles > 10
+    # re-acquired (by the movers; this seed's 100 particles do not keep the first restart) after
+    # tiles were searched too: both kinds of one-off grid went over the bus
+    reacquirer = reacquire_run["tracker"].reacquirer
+    assert sum(e.reacquired for e in expected) >= 1 and reacquirer.mover_detections >= 1 and reacquirer.tiles > 10
     rec = read_recording(r.mcap)
     got = sorted(rec.decoded("track/estimate"), key=lambda e: e.frame_index)
     assert [e.frame_index for e in got] == list(range(reacquire_run["n"]))

@@ -73,17 +73,25 @@ class Detection:
     """The target's apparent scale s (relative to the first box) the detection was matched at."""
 
 
+_MIN_EXCESSES = 20
+"""Boxes beyond the threshold needed to fit the tail's scale (its standard error about a fifth)."""
+
+
 def tail_probability(z: np.ndarray, top: int, far: np.ndarray, quantile: float) -> float:
     """P(a background box's z-score >= ``z[top]``), the background being the boxes ``far`` (bool,
     away from the top one): beyond their ``quantile`` u the tail is exponential with the mean excess
-    over u as its scale (peaks over a threshold, a generalised Pareto tail of shape 0). 1.0 when
-    fewer than 20 boxes exceed u (no tail to fit)."""
+    over u as its scale (peaks over a threshold, a generalised Pareto tail of shape 0). A frame of
+    few boxes (a large target) lowers the quantile until 20 boxes lie beyond it, down to the
+    median; 1.0 when even that leaves fewer than 20 (no tail to fit)."""
     bg = np.asarray(z, float)[np.asarray(far, bool)]
     if len(bg) == 0:
         return 1.0
+    quantile = min(quantile, 1.0 - _MIN_EXCESSES / len(bg))
+    if quantile < 0.5:
+        return 1.0
     u = float(np.quantile(bg, quantile))
     excess = bg[bg > u] - u
-    if len(excess) < 20:
+    if len(excess) < _MIN_EXCESSES:
         return 1.0
     zt = float(z[top])
     if zt <= u:
@@ -340,7 +348,7 @@ class Reacquirer:
             if not np.isfinite(per).any():
                 continue
             i, a = np.unravel_index(int(np.argmax(per)), per.shape)
-            if not (per[i, a] <= best.score):  # NaN (nothing scored yet) or lower
+            if not (per[i, a] <= best.score):  # higher, or nothing scored yet (NaN)
                 best = Detection(float(pts[i, 0]), float(pts[i, 1]), float(GRID_ANGLES_DEG[a]), float(per[i, a]),
                                  float(s))
         return best
