@@ -80,6 +80,7 @@ class MotionCue:
         self._factor = 1.0
         self._stats: tuple[float, float] | None = None
         self._grid = np.zeros((0, 2))
+        self._diff: np.ndarray | None = None
         self._scale = 1.0
         self.frames_with_cue = 0
 
@@ -208,7 +209,7 @@ class MotionCue:
         sigmas, connected to ``xy``, span the target and, along its direction of travel, the
         ground it crossed within the baseline; across it, the target's own extent. Their
         bounding box's short side over the first box's short side (None: no blob there)."""
-        d = getattr(self, "_diff", None)
+        d = self._diff
         if self._integral is None or d is None:
             return None
         med = float(np.median(d))

@@ -58,6 +58,7 @@ from scipy.stats import beta
 
 from common.detector.layout import N_ROWS
 from common.detector.resample import quantise_factor
+from common.tracking.camera import apply_homography
 from common.tracking.observation import GRID_ANGLES_DEG
 
 
@@ -152,10 +153,11 @@ class Reacquirer:
         infinity stays where it was."""
         if m is None or self.last_held is None:
             return
-        p = np.asarray(m, float) @ np.array([self.last_held[0], self.last_held[1], 1.0])
-        if p[2] != 0 and np.all(np.isfinite(p)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = apply_homography(m, np.array(self.last_held, float))
+        if np.isfinite(x) and np.isfinite(y):
             w, h = self.size
-            self.last_held = (float(np.clip(p[0] / p[2], 0, w - 1)), float(np.clip(p[1] / p[2], 0, h - 1)))
+            self.last_held = (float(np.clip(x, 0, w - 1)), float(np.clip(y, 0, h - 1)))
 
     def observe(self, time: float, state, scale: float) -> None:
         """Update the lost state from this frame's posterior ``state`` (after the filter step).
@@ -198,23 +200,29 @@ class Reacquirer:
         self.detections += 1
 
     # -- the search -------------------------------------------------------------------------------
-    def sweep_scale(self, lo: float = 0.0, hi: float = math.inf, counter: str = "_sweep") -> float:
+    def sweep_scale(self, lo: float = 0.0, hi: float = math.inf) -> float:
         """The scale this sweep of the frame searches at: every other sweep at s0, the scale the
         target was last held at (the likeliest), the sweeps between at s0/r, s0*r, s0/r^2, ... up
         to ``scale_steps`` ratios either way, skipping scales outside [lo, hi] (the scales the
-        matching can follow). ``counter`` names the sweep counter (the tiles' or the movers')."""
+        matching can follow; a skipped ratio advances the sweep)."""
+        s, self._sweep = self._scale_of_sweep(self._sweep, lo, hi)
+        return s
+
+    def _scale_of_sweep(self, n: int, lo: float, hi: float) -> tuple[float, int]:
+        """(scale, sweep) of sweep ``n`` (see :meth:`sweep_scale`): the sweep moves on past ratios
+        outside [lo, hi]."""
         count = 4 * self.cfg.scale_steps
         for _ in range(max(count, 1)):
-            n = getattr(self, counter) % count if count else 0
-            if n % 2 == 0:
-                return float(np.clip(self.last_scale, lo, hi))
-            m = n // 2  # 0, 1, 2, ...: ratios -1, +1, -2, +2, ...
+            i = n % count if count else 0
+            if i % 2 == 0:
+                return float(np.clip(self.last_scale, lo, hi)), n
+            m = i // 2  # 0, 1, 2, ...: ratios -1, +1, -2, +2, ...
             j = (m // 2 + 1) * (-1 if m % 2 == 0 else 1)
             s = self.last_scale * self.cfg.scale_ratio ** j
             if lo * (1 - 1e-9) <= s <= hi * (1 + 1e-9):
-                return s
-            setattr(self, counter, getattr(self, counter) + 2)  # the next ratio
-        return float(np.clip(self.last_scale, lo, hi))
+                return s, n
+            n += 2  # the next ratio
+        return float(np.clip(self.last_scale, lo, hi)), n
 
     def _tiles(self, side: float, margin: float) -> list[tuple[float, float, float, float]]:
         """The frame's tiles (x0, y0, x1, y1), each grown by ``margin`` on every side (a target on a
@@ -241,8 +249,9 @@ class Reacquirer:
 
         ``grid_at(k, xy)`` -> (scores (N, 48), valid (N,)) at factor ``k`` (the scale search's
         one-off grids); ``scale_tracker`` gives the matching factor and the target's length;
-        ``movers(s)`` -> (xy (n, 2), z (n,)), the motion z-scores of the frame's boxes at scale s
-        (:meth:`common.single_target.motion_cue.MotionCue.movers`; None: no moving-target cue).
+        ``movers`` is the tracker's moving-target cue with this frame pushed
+        (:class:`common.single_target.motion_cue.MotionCue`: ``movers(s)`` -> the frame's boxes and
+        their motion z-scores at scale s, ``blob_scale(xy)``; None: no cue, the tiles only).
 
         A candidate that passes the threshold on one frame is only pending: the next frame looks
         for it again within a target length of it (at its scale) and confirms it if it passes
@@ -306,8 +315,8 @@ class Reacquirer:
         if pending is not None:
             s = pending.scale  # the confirming frame looks at the scale it was found at
         else:
-            s = self.sweep_scale(*scale_tracker.scale_range(), counter="_mover_sweep")
-            self._mover_sweep += 1
+            s, n = self._scale_of_sweep(self._mover_sweep, *scale_tracker.scale_range())
+            self._mover_sweep = n + 1  # one scale a frame: the movers cover the frame at once
         xy, z = movers.movers(s)
         if len(z) == 0:
             return None

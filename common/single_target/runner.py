@@ -29,7 +29,7 @@ from common.settings import SYNTHETIC_BETA, TrackerSettings
 from common.sources import Frame
 from common.single_target.stabilise import CameraMotionEstimator
 from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
-from common.tracking.camera import apply_homography, homography_jacobian, image_to_world
+from common.tracking.camera import apply_homography, homography_jacobian, image_to_world, invert_homography
 from common.tracking.motion import NearConstantVelocity
 from common.tracking.state import Estimate, InitError
 from common.tracking.observation import CuedObservation, ObservationUnavailable
@@ -105,12 +105,11 @@ def _interframe(h_prev: np.ndarray | None, h_cur: np.ndarray | None) -> np.ndarr
     homographies (None: identity)."""
     if h_prev is None and h_cur is None:
         return None
-    prev = np.eye(3) if h_prev is None else np.asarray(h_prev, float)
-    cur = np.eye(3) if h_cur is None else np.asarray(h_cur, float)
     try:
-        return cur @ np.linalg.inv(prev)
+        inv = invert_homography(np.eye(3) if h_prev is None else h_prev)
     except np.linalg.LinAlgError:
         return None
+    return (np.eye(3) if h_cur is None else np.asarray(h_cur, float)) @ inv
 
 
 def _rotation_deg(j: np.ndarray) -> float:
@@ -131,8 +130,10 @@ class Tracker:
     """A filter with its template: ``step(frame) -> TrackState`` for frames in source order.
 
     Per frame, before the filter step: the camera motion (stabiliser, for sources without a
-    homography), the camera's rotation of the particles' orientation, the matching scale and the
-    moving-target cue on the observation; after it: the scale search and the template adaptation (each switched in the settings).
+    homography), the camera's rotation of the particles' orientation, the matching scale, the
+    re-acquisition's search while the target is lost and the moving-target cue on the observation;
+    after it: the scale search, the lost state and the template adaptation (each switched in the
+    settings).
 
     A frame is anything with ``index``, ``time``, ``homography``, ``size`` and, when stabilising,
     ``image`` (:class:`common.sources.Frame`; :class:`common.msgs.convert.InfoFrame` on the bus).
@@ -296,10 +297,11 @@ class Tracker:
     def _holding(self, state: TrackState) -> TrackState:
         """``state`` with the estimates replaced by where the target was last held, carried with the
         camera (:meth:`Reacquirer.carry`), at rest, once the filter's MAP has left the frame (a frame
-        that does not hold the target, :meth:`Reacquirer.observe`). Only then: inside the frame the cloud can still follow the target on its motion
-        and the moving-target cue (uav123-truck4's last 40 frames, where the template no longer
-        matches: p(V=1|Z) is 0 but the MAP stays within a few target lengths); outside it nothing
-        holds the cloud, which drifts on at its last velocity."""
+        that does not hold the target, :meth:`Reacquirer.observe`). Only then: inside the frame the
+        cloud can still follow the target on its motion and the moving-target cue (uav123-truck4's
+        last 40 frames, where the template no longer matches: p(V=1|Z) is 0 but the MAP stays within
+        a few target lengths); outside it nothing holds the cloud, which drifts on at its last
+        velocity."""
         r = self.reacquirer
         xy = np.asarray(r.last_held, float)
         wx, wy = image_to_world(self.homography, xy)
