@@ -72,14 +72,42 @@ def test_factor_one_agrees_with_the_plain_detector(scene):
 def test_resampled_support_and_crop_cap(scene):
     img, centre, matcher = scene
     obs = ResampledObservation(0, 0.0, img, matcher, 2.0)
-    # the footprint is 64 / k original pixels: 32 px at k = 2
-    s, valid = obs.score_at(np.array([[20.0, 200.0, 0.0], [40.0, 200.0, 0.0], [-5.0, 200.0, 0.0]]))
-    assert valid.tolist() == [False, True, False] and s[0] == 0.0 and s[2] == 0.0
+    # scored while the target (24 matched px, 24 / k original pixels: 12 px at k = 2) is in the frame
+    s, valid = obs.score_at(np.array([[10.0, 200.0, 0.0], [14.0, 200.0, 0.0], [-5.0, 200.0, 0.0],
+                                      [625.0, 200.0, 0.0], [629.0, 200.0, 0.0]]))
+    assert valid.tolist() == [False, True, False, True, False] and s[0] == 0.0 and s[2] == 0.0
     # a cloud spread over the whole frame at a high factor: far hypotheses are dropped, not prepared
     capped = ResampledObservation(0, 0.0, img, matcher, 4.0, max_crop_px=600 ** 2)
     xy = np.array([[320.0, 240.0, 0.0], [322.0, 241.0, 0.0], [600.0, 60.0, 0.0]])
     _, valid = capped.score_at(xy)
     assert valid.tolist() == [True, True, False] and capped.dropped == 1
+
+
+@pytest.mark.parametrize("k", [0.5, 2.0])
+def test_a_target_at_the_frame_edge_is_matched(k):
+    """A target whose footprint reaches past the frame edge (only the target itself inside) is
+    matched at its place and angle, its context read from the reflected frame; negative control:
+    the same place on other ground scores low."""
+    img = texture(seed=3, size=(480, 640))
+    centre = (320.0, 240.0)
+    m = PolarMatcher(Template(pmatrix=sample_template_pmatrix(img, centre, k), centre=centre))
+    edge_x = 639 - 30.0 / k  # the target 30 matched px from the right edge: the footprint is 64
+    shifted = np.roll(img, int(round(edge_x - centre[0])), axis=1)
+    obs = ResampledObservation(0, 0.0, shifted, m, k)
+    theta, score = obs.refine_peak(edge_x, centre[1])
+    inside, _ = ResampledObservation(0, 0.0, img, m, k).refine_peak(*centre)
+    assert score > 0.6 and abs(theta) < 3.0, (score, theta)
+    xy = np.array([[edge_x + dx, centre[1] + dy] for dy in (-6.0 / k, 0.0, 6.0 / k) for dx in (-6.0 / k, 0.0)])
+    grid, valid = obs.score_grid(xy)
+    assert valid.all() and int(np.argmax(grid.max(axis=1))) == 3  # the peak is at the target
+    other, _ = ResampledObservation(0, 0.0, texture(seed=4, size=(480, 640)), m, k).refine_peak(edge_x, centre[1])
+    assert other < score - 0.3, (other, score)
+    # what sets the state outright reads only whole footprints: the one-off grids (a restart, a
+    # scale correction) do not score it, and no P-matrix is sampled there for the template
+    assert obs.pmatrix_at(edge_x, centre[1]) is None
+    assert obs.pmatrix_at(edge_x - 40.0 / k, centre[1]) is not None
+    _, whole = one_off_grid(0.0, shifted, m, k, xy)
+    assert not whole.any()
 
 
 def test_upsampling_rule_and_quantisation():

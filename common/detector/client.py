@@ -49,8 +49,12 @@ def frame_observation(key: object, time: float, image: np.ndarray, matcher: Pola
 def one_off_grid(time: float, image: np.ndarray, matcher: PolarMatcher, k: float,
                  xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """48-angle scores at ``xy`` on a crop of ``image`` resampled by ``k``, prepared for this call
-    alone (the scale search's measurement: unaffected by the frame's other queries)."""
-    return ResampledObservation(None, time, image, matcher, k).score_grid(xy)
+    alone (the scale search's and the re-acquisition's measurements: unaffected by the frame's
+    other queries). Only hypotheses whose whole footprint lies in the frame are scored: these
+    measurements set the state outright (a restart's position, a scale correction), and a score
+    that reads the reflection beyond the frame's edge is biased (the filter's per-frame scores
+    may, weighed against its motion prior)."""
+    return ResampledObservation(None, time, image, matcher, k, whole_footprint=True).score_grid(xy)
 
 
 class DetectorClient(Protocol):

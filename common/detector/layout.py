@@ -37,6 +37,11 @@ for the ``_bp`` filters (spec section 2 table)."""
 RINGS: tuple[tuple[int, int], ...] = ((2, 1), (2, 2), (3, 1), (3, 2), (4, 1))
 """Rings as (level, radius in level samples); every used level also has a centre column."""
 
+DESIGN_TARGET_PX = 48
+"""The target length (matched pixels) the layout is designed for: a ~50 px car, its rings (out to
+16 px from the centre) on the car and the level-5 centre column's kernel the context about it
+(``ScaleSettings.target_size_px`` upsamples smaller targets to this)."""
+
 KC_GAIN = 0.8 * 1.6 * np.pi
 """Derived: a ring column's harmonic centre is round(KC_GAIN * rho * sin(15 + 30 s deg))."""
 

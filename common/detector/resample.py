@@ -11,8 +11,11 @@ Only the area the queried hypotheses need is resampled: their bounding box, time
 ``SUPPORT_RADIUS_PX + KERNEL_MARGIN_PX`` resampled pixels on every side (the same margin rule as
 :func:`common.detector.frame.prepare_frame` uses for a region), and that crop is prepared whole.
 Where the crop passes the frame edge it is filled by symmetric reflection, as the full-frame
-preparation pads; a hypothesis is valid (in support) only if its footprint, ``SUPPORT_RADIUS_PX / k``
-original pixels about it, lies inside the frame.
+preparation pads; a hypothesis is valid (in support) when the target it stands for is in the
+frame, ``EDGE_SUPPORT_PX / k`` original pixels about it (the footprint's outer context may read the
+reflection). The plain path at ``k == 1`` (:class:`common.detector.observation.DetectorObservation`)
+keeps the whole-footprint rule: its full-frame preparation has no reflected margin on the top and
+left.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import cv2
 import numpy as np
 
 from common.detector.frame import KERNEL_MARGIN_PX, PreparedFrame, prepare_frame
-from common.detector.layout import BLOCK, N_ANGLES, SUPPORT_RADIUS_PX
+from common.detector.layout import BLOCK, DESIGN_TARGET_PX, N_ANGLES, SUPPORT_RADIUS_PX
 from common.detector.matcher import PolarMatcher, check_hypotheses
 from common.detector.sampler import sample_pmatrices
 
@@ -106,9 +109,29 @@ class ResampledRegion:
                            & (c[:, 1] >= m) & (c[:, 1] <= self.prep.height - 1 - m)))
 
 
+EDGE_SUPPORT_PX = DESIGN_TARGET_PX / 2
+"""A resampled hypothesis is scored while this many matched pixels about it, half the target length
+the layout is designed for, lie in the frame: the target it stands for is in view. The rest of the
+footprint (out to ``SUPPORT_RADIUS_PX``) may reach beyond the frame's edge, where the crop holds the
+frame reflected (``BORDER_REFLECT``): the context there matches less, the target's own rings as
+well as anywhere. Requiring the whole footprint lost a large target near the edge: uav123-truck4's
+last 40 frames, a 67 px truck within 1.5 footprints of the bottom edge (docs/real-footage.md)."""
+
+
 def footprint_valid(xy: np.ndarray, k: float, size: tuple[int, int]) -> np.ndarray:
-    """Hypotheses whose matching footprint (``SUPPORT_RADIUS_PX / k`` original pixels) lies in the
-    ``size`` = (width, height) frame."""
+    """Hypotheses scored at factor ``k`` in the ``size`` = (width, height) frame: at least
+    ``EDGE_SUPPORT_PX / k`` original pixels inside it, the footprint (``SUPPORT_RADIUS_PX / k``
+    either way) no wider than the frame, so that it passes at most one edge on each axis (a
+    footprint larger than the frame would read mostly reflections: no hypothesis is valid then)."""
+    r = EDGE_SUPPORT_PX / k
+    w, h = size
+    if 2 * SUPPORT_RADIUS_PX / k > min(w, h) - 1:
+        return np.zeros(len(xy), bool)
+    return (xy[:, 0] >= r) & (xy[:, 0] <= w - 1 - r) & (xy[:, 1] >= r) & (xy[:, 1] <= h - 1 - r)
+
+
+def footprint_inside(xy: np.ndarray, k: float, size: tuple[int, int]) -> np.ndarray:
+    """Hypotheses whose whole footprint (``SUPPORT_RADIUS_PX / k`` original pixels) lies in the frame."""
     r = SUPPORT_RADIUS_PX / k
     w, h = size
     return (xy[:, 0] >= r) & (xy[:, 0] <= w - 1 - r) & (xy[:, 1] >= r) & (xy[:, 1] <= h - 1 - r)
@@ -131,8 +154,12 @@ class ResampledObservation:
     filter's query, then the template update at the estimate)."""
 
     def __init__(self, key: object, time: float, image: np.ndarray, matcher: PolarMatcher, k: float,
-                 homography: np.ndarray | None = None, max_crop_px: float = MAX_CROP_PX):
+                 homography: np.ndarray | None = None, max_crop_px: float = MAX_CROP_PX,
+                 whole_footprint: bool = False):
+        """``whole_footprint``: score only hypotheses whose whole footprint lies in the frame
+        (:func:`footprint_inside`) instead of those whose target does (:func:`footprint_valid`)."""
         self.key = key
+        self.whole_footprint = bool(whole_footprint)
         self.time = float(time)
         self.image = image
         self.matcher = matcher
@@ -166,6 +193,8 @@ class ResampledObservation:
         resampled crop stays within ``max_crop_px`` pixels (a cloud spread over the whole frame at
         a high factor would otherwise cost seconds): the rest count as out of support."""
         valid = footprint_valid(xy, self.k, self.image_size)
+        if self.whole_footprint:
+            valid &= footprint_inside(xy, self.k, self.image_size)
         if valid.sum() < 2:
             return valid
         side = math.sqrt(self.max_crop_px) - 2 * CROP_MARGIN_PX
@@ -218,9 +247,11 @@ class ResampledObservation:
         return theta, score
 
     def pmatrix_at(self, x: float, y: float) -> np.ndarray | None:
-        """The P-matrix (12, 34 C) at one point (original pixels), None out of support."""
+        """The P-matrix (12, 34 C) at one point (original pixels), None unless its whole footprint
+        lies in the frame: a sample (the template adaptation's) must not take in the reflection
+        beyond the frame's edge that a score may read."""
         xy = np.array([[float(x), float(y)]])
-        if not self._valid(xy)[0]:
+        if not (self._valid(xy)[0] and footprint_inside(xy, self.k, self.image_size)[0]):
             return None
         region = self.region_for(xy)
         c = region.to_crop(xy)
