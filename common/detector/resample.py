@@ -123,16 +123,18 @@ def footprint_valid(xy: np.ndarray, k: float, size: tuple[int, int]) -> np.ndarr
     ``EDGE_SUPPORT_PX / k`` original pixels inside it, the footprint (``SUPPORT_RADIUS_PX / k``
     either way) no wider than the frame, so that it passes at most one edge on each axis (a
     footprint larger than the frame would read mostly reflections: no hypothesis is valid then)."""
-    r = EDGE_SUPPORT_PX / k
-    w, h = size
-    if 2 * SUPPORT_RADIUS_PX / k > min(w, h) - 1:
+    if 2 * SUPPORT_RADIUS_PX / k > min(size) - 1:
         return np.zeros(len(xy), bool)
-    return (xy[:, 0] >= r) & (xy[:, 0] <= w - 1 - r) & (xy[:, 1] >= r) & (xy[:, 1] <= h - 1 - r)
+    return _inside_by(xy, EDGE_SUPPORT_PX / k, size)
 
 
 def footprint_inside(xy: np.ndarray, k: float, size: tuple[int, int]) -> np.ndarray:
     """Hypotheses whose whole footprint (``SUPPORT_RADIUS_PX / k`` original pixels) lies in the frame."""
-    r = SUPPORT_RADIUS_PX / k
+    return _inside_by(xy, SUPPORT_RADIUS_PX / k, size)
+
+
+def _inside_by(xy: np.ndarray, r: float, size: tuple[int, int]) -> np.ndarray:
+    """Points (N, 2) at least ``r`` pixels inside the ``size`` = (width, height) frame."""
     w, h = size
     return (xy[:, 0] >= r) & (xy[:, 0] <= w - 1 - r) & (xy[:, 1] >= r) & (xy[:, 1] <= h - 1 - r)
 
