@@ -35,7 +35,12 @@ confident detection to restart the filter on.
   (:meth:`~common.single_target.motion_cue.MotionCue.blob_scale`) is the largest the target
   can have; the polar matcher picks the scale among it and one and two ``scale_ratio`` below,
   and the position and angle on a grid about the mover. It must be the strongest mover again
-  on the next frame, within a target length (at that scale), before the filter restarts there.
+  on the next frame, within a target length (at that scale), before the filter restarts there,
+  at the matcher's peak refined about the grid's best (the grid is a quarter of a target length
+  apart, the peak narrower). While the matcher cannot score the mover itself (a target entering
+  at the frame's edge, its footprint not yet in the frame) the mover stays pending: the grid's
+  scorable points there lie towards the frame's inside, off the target (the synthetic exit
+  sequence's restart was 16 px ahead of the car, and the filter lost it).
   On real footage the template often no longer matches a target that comes back (another view,
   another size: uav123-car16's car scores 0.5 where the road scores 0.75, docs/real-footage.md),
   but a car that drives still moves over the ground.
@@ -51,7 +56,7 @@ confident detection to restart the filter on.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import beta
@@ -327,23 +332,36 @@ class Reacquirer:
             return None
         x, y = float(xy[top, 0]), float(xy[top, 1])
         if pending is not None and math.hypot(x - pending.x, y - pending.y) <= length:
+            det, on_mover = self._match_mover(grid_at, scale_tracker, x, y, [pending.scale])
+            if not on_mover:
+                # the matcher cannot score the mover itself (its footprint is not yet in the frame):
+                # its best scorable point is displaced towards the frame's inside, off the target.
+                # Wait for the frame on which it can (it stays pending where it is now)
+                self._pending_mover = replace(pending, x=x, y=y)
+                return None
             self.mover_detections += 1
-            return self._match_mover(grid_at, scale_tracker, x, y, [pending.scale])
+            # the grid is a quarter of a target length apart, the matcher's peak narrower: refine
+            step = 0.25 * scale_tracker.length_px * det.scale
+            k = quantise_factor(scale_tracker.raw_factor(det.scale), scale_tracker.cfg.steps_per_octave)
+            return self._refine(grid_at, k, np.array([[det.x, det.y]]), np.array([det.score]), step, det.scale)
         # the scale: the blob spans the target and its motion smear (and blur), so at most the
         # blob's; the matcher picks among the ratios below it
         blob = movers.blob_scale((x, y))
         top_s = s if blob is None else blob
         lo, hi = scale_tracker.scale_range()
         scales = sorted({float(np.clip(top_s / cfg.scale_ratio ** j, lo, hi)) for j in range(3)})
-        self._pending_mover = self._match_mover(grid_at, scale_tracker, x, y, scales)
+        self._pending_mover, _ = self._match_mover(grid_at, scale_tracker, x, y, scales)
         return None
 
-    def _match_mover(self, grid_at, scale_tracker, x: float, y: float, scales: list[float]) -> Detection:
+    def _match_mover(self, grid_at, scale_tracker, x: float, y: float,
+                     scales: list[float]) -> tuple[Detection, bool]:
         """The matcher's best (position, angle, scale) on a 5x5 grid a quarter of a target length
         apart about the mover at ``(x, y)``, over ``scales`` (the mover's box centre is only as
         fine as the boxes' half-box spacing); the mover itself at the first scale when the matcher
-        cannot score there."""
+        cannot score there. And whether the matcher could score the mover's own position at the
+        best's scale (near the frame's edge only the grid's inner points may be scorable)."""
         best = Detection(x, y, self.last_theta, float("nan"), float(scales[0]))
+        on_mover = False
         off = np.arange(-2, 3) * 0.25
         gx, gy = np.meshgrid(off, off)
         grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
@@ -360,7 +378,8 @@ class Reacquirer:
             if not (per[i, a] <= best.score):  # higher, or nothing scored yet (NaN)
                 best = Detection(float(pts[i, 0]), float(pts[i, 1]), float(GRID_ANGLES_DEG[a]), float(per[i, a]),
                                  float(s))
-        return best
+                on_mover = bool(ok[0])  # grid[0] is the mover itself
+        return best, on_mover
 
     def _refine(self, grid_at, k: float, xy: np.ndarray, maxima: np.ndarray, step: float, s: float) -> Detection:
         """The best of the ``refine_candidates`` best coarse candidates, each refined twice on a
