@@ -203,6 +203,8 @@ class TrackerSettings(BaseModel):
     """If set, the position filters' driving noise is sqrt(q) = this many target lengths per s^1.5 per
     axis, the target length being the initial box's long side in world units (q = (this * L)^2,
     overriding rbpf/sir.motion); None keeps the configured q."""
+    jump_std_lengths: float | None = Field(None, gt=0)
+    """If set, the RBPF's jump std (``rbpf.jump_std``) is this many target lengths (as above)."""
     init_vel_lengths: float | None = Field(None, ge=0)
     """If set, init_vel_std = this many target lengths per second (as above)."""
     init_pos_std: float = Field(0.0, ge=0)
@@ -266,6 +268,17 @@ REAL_INIT_VEL_LENGTHS = round(10.0 / CAR_LENGTH_M, 1)
 """Initial velocity spread for real footage, target lengths per second: an urban speed of
 10 m/s (2.2 lengths/s) at 1 sigma; the first box says where the target is, not how it moves."""
 
+REAL_JUMP_STD_LENGTHS = 0.5
+"""The RBPF's jump component for real footage (``jump_std_lengths``): half a target length per
+axis. A small target's template is mostly its surroundings, and its score surface has a
+secondary peak where the target *was* on the ground (uav123-truck4: the best match 7-14 px behind
+an 11 px truck, docs/real-footage.md): a cloud on that peak can only leave it by a move of about
+a target length, which the near-constant-velocity noise does not make in one step."""
+REAL_JUMP_RATE_PER_S = 0.3
+"""... at 0.3 jumps a second for a visible target (``rbpf.jump_rate_per_s``; 0.01 a step at 30 fps,
+the occlusion study's RECOVERY_PROPOSAL rate): a rare event, so a held track's cloud keeps
+almost all its particles on the NCV."""
+
 
 PRESETS: dict[ProfileName, dict] = {
     # The synthetic scene: Pang's model at the scene's frame rate, with this detector's own
@@ -273,18 +286,21 @@ PRESETS: dict[ProfileName, dict] = {
     "synthetic": {"rbpf": {"likelihood": {"kind": "beta_ratio", **SYNTHETIC_BETA}}},
     # Real footage: the same likelihood; the motion noise and the initial velocity spread in
     # target lengths (the world is then stabilised pixels, or target lengths; see
-    # REAL_MOTION_NOISE_LENGTHS); the per-frame mechanisms (see the fields): template adaptation,
+    # REAL_MOTION_NOISE_LENGTHS), with a jump component (REAL_JUMP_STD_LENGTHS); the per-frame
+    # mechanisms (see the fields): template adaptation,
     # matching at the target's scale (upsampling a small target, tracking its size), turning the
     # particles with the camera, re-acquisition; stabilisation is on by default ("auto") for any
     # source without a homography.
     "real": {
-        "rbpf": {"likelihood": {"kind": "beta_ratio", **SYNTHETIC_BETA}, "n_particles": REAL_PARTICLES},
+        "rbpf": {"likelihood": {"kind": "beta_ratio", **SYNTHETIC_BETA}, "n_particles": REAL_PARTICLES,
+                 "jump_rate_per_s": REAL_JUMP_RATE_PER_S},
         "sir": {"n_particles": REAL_PARTICLES},
         "adaptation": REAL_ADAPTATION.model_dump(exclude_defaults=True),
         "scale": ScaleSettings().model_dump(),
         "compensate_camera_rotation": True,
         "motion_noise_lengths": REAL_MOTION_NOISE_LENGTHS,
         "init_vel_lengths": REAL_INIT_VEL_LENGTHS,
+        "jump_std_lengths": REAL_JUMP_STD_LENGTHS,
         "reacquisition": {"enabled": True},
         "motion_cue": {"enabled": True},
     },

@@ -196,3 +196,26 @@ def test_grid_proposal_without_an_answer_draws_theta_from_its_prior():
     b.step(1 / 30, None)
     assert not np.array_equal(a.particles[:, 4], before)  # theta moved
     assert np.array_equal(a.particles, b.particles)  # exactly as without an observation
+
+
+@pytest.mark.parametrize("dt", [1 / 30, 1 / 10])
+def test_jump_rate_per_second_is_the_same_whatever_the_frame_rate(dt):
+    """``jump_rate_per_s`` r: a visible target jumps in a step of dt seconds with probability
+    1 - exp(-r dt), so over one second (1/dt steps) with probability 1 - exp(-r) at 10 and 30 fps
+    alike; a hidden target does not jump, and a rate of 0 draws no jump (negative controls)."""
+    rate, n = 3.0, 20000
+    cfg = RBPFConfig(n_particles=n, motion=NearConstantVelocity(q_x=1e-12, q_y=1e-12),
+                     jump_rate_per_s=rate, jump_std=50.0)
+    f = RBPF(cfg, InitialState(x=0.0, y=0.0, p_visible=1.0, time=0.0), seed=3)
+    f.predict(dt)
+    moved = np.hypot(f.particles[:, 0], f.particles[:, 2]) > 1e-3
+    p = 1 - np.exp(-rate * dt)
+    assert abs(moved.mean() - p) < 4 * np.sqrt(p * (1 - p) / n)
+    assert f._jump_probability(1.0) == pytest.approx(1 - np.exp(-rate))
+    hidden = RBPF(cfg, InitialState(x=0.0, y=0.0, p_visible=0.0, time=0.0), seed=3)
+    hidden.predict(dt)
+    assert np.max(np.abs(hidden.particles[:, [0, 2]])) < 1e-3
+    off = RBPF(cfg.model_copy(update={"jump_rate_per_s": 0.0, "jump_probability": 0.5}),
+               InitialState(x=0.0, y=0.0, p_visible=1.0, time=0.0), seed=3)
+    off.predict(dt)  # the rate replaces the per-step probability: 0 a second is no jump at all
+    assert np.max(np.abs(off.particles[:, [0, 2]])) < 1e-3

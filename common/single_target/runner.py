@@ -75,8 +75,9 @@ def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, 
                 homography: np.ndarray | None, t0: float):
     """The configured filter, started on the centre of ``init_box`` (x, y, w, h) of the first frame.
 
-    With ``settings.motion_noise_lengths`` / ``init_vel_lengths`` set, the driving noise and the
-    initial velocity spread are taken in target lengths (the box's long side in world units)."""
+    With ``settings.motion_noise_lengths`` / ``init_vel_lengths`` / ``jump_std_lengths`` set, the
+    driving noise, the initial velocity spread and the RBPF's jump are taken in target lengths (the
+    box's long side in world units)."""
     x, y, w, h = init_box
     length = target_length_world(init_box, homography)
     initial = InitialState.from_image_point((x + w / 2, y + h / 2), homography, time=t0,
@@ -86,7 +87,10 @@ def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, 
         q = (settings.motion_noise_lengths * length) ** 2
         upd["motion"] = NearConstantVelocity(q_x=q, q_y=q)
     if settings.filter == "rbpf":
-        return RBPF(settings.rbpf.model_copy(update=upd) if upd else settings.rbpf, initial, seed=settings.seed)
+        rupd = dict(upd)
+        if settings.jump_std_lengths is not None:
+            rupd["jump_std"] = settings.jump_std_lengths * length
+        return RBPF(settings.rbpf.model_copy(update=rupd) if rupd else settings.rbpf, initial, seed=settings.seed)
     if settings.filter == "sir":
         return SIR(settings.sir.model_copy(update=upd) if upd else settings.sir, initial, seed=settings.seed)
     return WindowedML(settings.ml, initial)

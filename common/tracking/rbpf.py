@@ -65,6 +65,9 @@ class RBPFConfig(ParticleFilterConfig):
     onto (e.g. the front half of a car emerging from smoke, matched half a car length ahead). Occluded
     particles do not jump: a hidden target's cloud is not drawn to look-alike clutter. 0 (default) is
     Pang's model."""
+    jump_rate_per_s: float | None = Field(None, ge=0.0)
+    """If set, replaces ``jump_probability`` by a rate: a step of dt seconds jumps with probability
+    1 - exp(-rate dt), the same model whatever the frame rate."""
     jump_std: float = Field(2.0, gt=0.0)
     """Std of a jump per axis, world units (m, or px without homography)."""
     jump_candidates: int = Field(0, ge=0)
@@ -138,13 +141,20 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         self._resample = resampling.get_scheme(self.config.resampling)
         self._n = n
 
+    def _jump_probability(self, dt: float) -> float:
+        """The probability that a visible target jumps in a step of ``dt`` seconds."""
+        cfg = self.config
+        if cfg.jump_rate_per_s is None:
+            return cfg.jump_probability
+        return float(-np.expm1(-cfg.jump_rate_per_s * max(dt, 0.0)))
+
     def _jump(self, parents: np.ndarray, dt: float) -> None:
         """Add the jump component to the sampled positions and weight each candidate by
         p(x' | x) / q(x' | x) (:func:`common.tracking.motion.jump_mixture_log_weights`).
         Draws M uniforms (prior sampling) or nothing, then 2M normals."""
         cfg = self.config
         m = self.n_particles
-        eps = cfg.jump_probability * np.exp(self.log_pv[:, 1])  # pi_{t-1,p}(1): only visible targets jump
+        eps = self._jump_probability(dt) * np.exp(self.log_pv[:, 1])  # pi_{t-1,p}(1): only visible targets jump
         if cfg.jump_candidates == 0:
             jumped = self.rng.uniform(size=m) < eps
         else:
@@ -181,7 +191,8 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
 
         Draw order (fixed, for reproducibility): 4M normals (X), M normals (theta; not with the
         'grid' orientation proposal, which draws theta in the update), and with
-        ``jump_probability > 0`` M uniforms (unless jump candidates are used) and 2M normals
+        a jump component (``jump_probability`` or ``jump_rate_per_s`` > 0) M uniforms (unless jump
+        candidates are used) and 2M normals
         (jumps); M = N * candidates (kept in groups of K until :meth:`_keep_one_per_group`).
         """
         cfg = self.config
@@ -195,7 +206,7 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         if cfg.orientation_proposal == "prior":
             self.particles[:, 4] = cfg.orientation.sample(self.particles[:, 4], dt, self.rng)
         self._theta_sigma = float(np.sqrt(cfg.orientation.variance(dt)))
-        if cfg.jump_probability > 0:
+        if (cfg.jump_probability if cfg.jump_rate_per_s is None else cfg.jump_rate_per_s) > 0:
             self._jump(parents, dt)
         self.log_pv = cfg.visibility.predict_log(self.log_pv)
 
