@@ -287,10 +287,9 @@ PRESETS: dict[ProfileName, dict] = {
     # Real footage: the same likelihood; the motion noise and the initial velocity spread in
     # target lengths (the world is then stabilised pixels, or target lengths; see
     # REAL_MOTION_NOISE_LENGTHS), with a jump component (REAL_JUMP_STD_LENGTHS); the per-frame
-    # mechanisms (see the fields): template adaptation,
-    # matching at the target's scale (upsampling a small target, tracking its size), turning the
-    # particles with the camera, re-acquisition; stabilisation is on by default ("auto") for any
-    # source without a homography.
+    # mechanisms (see the fields): template adaptation, matching at the target's scale (upsampling
+    # a small target, tracking its size), turning the particles with the camera, re-acquisition;
+    # stabilisation is on by default ("auto") for any source without a homography.
     "real": {
         "rbpf": {"likelihood": {"kind": "beta_ratio", **SYNTHETIC_BETA}, "n_particles": REAL_PARTICLES,
                  "jump_rate_per_s": REAL_JUMP_RATE_PER_S},

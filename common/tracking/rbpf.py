@@ -192,8 +192,8 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         Draw order (fixed, for reproducibility): 4M normals (X), M normals (theta; not with the
         'grid' orientation proposal, which draws theta in the update), and with
         a jump component (``jump_probability`` or ``jump_rate_per_s`` > 0) M uniforms (unless jump
-        candidates are used) and 2M normals
-        (jumps); M = N * candidates (kept in groups of K until :meth:`_keep_one_per_group`).
+        candidates are used) and 2M normals (jumps); M = N * candidates (kept in groups of K until
+        :meth:`_keep_one_per_group`).
         """
         cfg = self.config
         if cfg.candidates > 1:  # N groups of K candidates, each with weight w_p / K
@@ -206,7 +206,7 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         if cfg.orientation_proposal == "prior":
             self.particles[:, 4] = cfg.orientation.sample(self.particles[:, 4], dt, self.rng)
         self._theta_sigma = float(np.sqrt(cfg.orientation.variance(dt)))
-        if (cfg.jump_probability if cfg.jump_rate_per_s is None else cfg.jump_rate_per_s) > 0:
+        if self._jump_probability(1.0) > 0:  # a jump component at all (whatever this step's dt)
             self._jump(parents, dt)
         self.log_pv = cfg.visibility.predict_log(self.log_pv)
 
