@@ -11,6 +11,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.single_target.stabilise import StabiliserConfig
+from common.single_target.target_flow import TargetFlowConfig
 from common.tracking import RBPFConfig, SIRConfig, WindowedMLConfig
 from common.tracking.motion import NearConstantVelocity
 
@@ -46,6 +47,11 @@ class TemplateAdaptation(BaseModel):
     interval_s: float = Field(0.1, ge=0)
     """At most one update per this many seconds (0: every frame that passes the gates); keeps the
     adaptation rate per second, not per frame, whatever the frame rate."""
+    hold_after_restart_s: float = Field(0.5, ge=0)
+    """No update for this many seconds after a re-acquisition restarts the filter: the restart's
+    position is a search grid's (a quarter of its step), and until the cloud has settled on the peak
+    an update would take in a view off the target's centre, which the template then keeps matching
+    (the synthetic re-entry: 5 px off for good, when the first update came the frame after it)."""
 
 
 class ScaleSettings(BaseModel):
@@ -94,6 +100,13 @@ class ScaleSettings(BaseModel):
     size)."""
     search_min_p_visible: float = Field(0.5, ge=0, le=1)
     """... and p(V=1|Z) at least this."""
+    searches_after_restart: int = Field(3, ge=0)
+    """After a re-acquisition restarts the filter, this many searches are made whatever the score and
+    p(V=1|Z): the detection was confident, but its scale is the sweep's nearest step, and a target
+    matched at the wrong scale scores below the minimum above, which would keep the search off."""
+    flow: TargetFlowConfig = Field(default_factory=TargetFlowConfig)
+    """The target's own change of size, measured from its pixels and fused with the camera's zoom in the
+    prediction between searches (stabilised sources)."""
 
 
 class ReacquisitionSettings(BaseModel):

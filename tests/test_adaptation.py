@@ -119,3 +119,32 @@ def test_adaptation_off_is_the_plain_pipeline():
         tracker_on.step(f)
     assert tracker_on.adaptations > 0
     assert not np.array_equal(tracker_on.template.pmatrix, tracker.template.pmatrix)
+
+
+def test_no_adaptation_while_a_restart_settles():
+    """After a re-acquisition's restart the template is not updated for ``hold_after_restart_s``
+    (the cloud has not settled on the peak); the same frames without a restart update it in that
+    time (negative control)."""
+    src = open_source("synthetic:3", n_frames=30)
+    st = profile_for(src, filter="rbpf", seed=1)
+    st = st.model_copy(update={"adaptation": TemplateAdaptation(enabled=True)})
+    frames = list(src)
+    box = frames[0].truth.box
+    hold = st.adaptation.hold_after_restart_s
+    assert frames[-1].time > hold + 2 * st.adaptation.interval_s
+
+    def adaptations(restart_at: float | None) -> list[tuple[float, int]]:
+        tracker = Tracker.start(frames[0], box, st)
+        if restart_at is not None:
+            tracker._restart_time = restart_at  # as Tracker._search sets it on a restart
+        out = []
+        for f in frames:
+            tracker.step(f)
+            out.append((f.time, tracker.adaptations))
+        return out
+
+    held = adaptations(frames[0].time)
+    assert all(n == 0 for t, n in held if t - frames[0].time < hold - 1e-9)
+    assert held[-1][1] > 0
+    free = adaptations(None)
+    assert any(n > 0 for t, n in free if t - frames[0].time < hold - 1e-9)

@@ -288,7 +288,8 @@ def test_run_file_fits_the_synthetic_scene():
     path = str(DEPLOY / "run.toml")
     spec, settings = load_run("test", path)
     source = open_source(spec.source)
-    assert spec.init_box == source.frame(0).truth.box and spec.fps == source.fps
+    # the box to a millionth of a pixel (services.deploy.compose_run_spec)
+    assert spec.init_box == pytest.approx(source.frame(0).truth.box, abs=1e-6) and spec.fps == source.fps
     assert settings == profile_for(source, filter="rbpf", seed=0)
     keys = ingest_svc.run_keys(spec, settings, path)
     tkeys = tracker_svc.run_keys(spec, settings, path)

@@ -157,3 +157,30 @@ def test_scale_from_a_metric_homography():
     st.predict(h0, np.diag([20.0, 20.0, 1.0]), np.array([12.0, 11.0]), 0.1)
     assert st.s == pytest.approx(2.0)
     assert st.factor() == pytest.approx(quantise_factor(st.u / 2.0))
+
+
+def test_searches_after_a_restart_are_made_whatever_the_score():
+    """A target restarted at the wrong scale scores low, and the score gate would keep the search
+    off: after a restart the next ``searches_after_restart`` searches are made anyway (negative
+    control: without a restart the same low score stops the search)."""
+    img = texture(seed=3)
+    centre = (img.shape[1] / 2, img.shape[0] / 2)
+    box = (centre[0] - 20, centre[1] - 10, 40, 20)
+    cfg = ScaleSettings(search_rate_gain=0.0)
+    matcher = PolarMatcher(Template(pmatrix=sample_template_pmatrix(img, centre, 1.0), centre=centre))
+
+    class State:
+        score, p_visible = 0.2, 1.0  # below search_min_score
+
+        class map_estimate:
+            image_x, image_y = centre
+
+    def grid_at(k, xy):
+        return one_off_grid(0.0, img, matcher, k, xy)
+
+    st = ScaleTracker(cfg, box, False, None, np.array(centre), 0.0)
+    assert not st.maybe_search(0.2, grid_at, State)
+    st.restart(1.4)  # the wrong scale: the target is at 1.0
+    made = [st.maybe_search(0.2 * i, grid_at, State) for i in range(2, 8)]
+    assert made == [True] * cfg.searches_after_restart + [False] * (6 - cfg.searches_after_restart)
+    assert 1.0 <= st.s < 1.4 and abs(np.log(st.s)) < 0.6 * abs(np.log(1.4))  # corrected towards the target's

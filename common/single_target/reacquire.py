@@ -269,7 +269,7 @@ class Reacquirer:
             det = self._search_movers(dt, grid_at, scale_tracker, movers)
             if det is not None:
                 self._pending = None
-                return det
+                return self._at_best_scale(det, grid_at, scale_tracker)
         pending, self._pending = self._pending, None
         if pending is not None:
             det, thr = pending
@@ -282,7 +282,7 @@ class Reacquirer:
             if again is not None:
                 again = self._refine(grid_at, k, xy, maxima, step / 1.5, det.scale)
                 if again.score >= thr:
-                    return again
+                    return self._at_best_scale(again, grid_at, scale_tracker)
         best: tuple[Detection, float] | None = None
         for _ in range(cfg.tiles_per_frame):
             s = self.sweep_scale(*scale_tracker.scale_range())
@@ -380,6 +380,25 @@ class Reacquirer:
                                  float(s))
                 on_mover = bool(ok[0])  # grid[0] is the mover itself
         return best, on_mover
+
+    def _at_best_scale(self, det: Detection, grid_at, scale_tracker) -> Detection:
+        """``det`` refined (position, angle) at its own scale and at one and two half ``scale_ratio``
+        steps either way, the best of them: a detection is made at a sweep's scale (a mover: at one
+        of its blob's), and a target matched at the wrong scale is matched off its centre and angle
+        too, which a restart would keep."""
+        lo, hi = scale_tracker.scale_range()
+        r = math.sqrt(self.cfg.scale_ratio)
+        best = det
+        for j in (-2, -1, 1, 2):
+            s = det.scale * r ** j
+            if not lo <= s <= hi:
+                continue
+            k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
+            step = max(0.25 * scale_tracker.length_px * s, 1.0)
+            cand = self._refine(grid_at, k, np.array([[det.x, det.y]]), np.array([det.score]), step, s)
+            if cand.score > best.score:
+                best = cand
+        return best
 
     def _refine(self, grid_at, k: float, xy: np.ndarray, maxima: np.ndarray, step: float, s: float) -> Detection:
         """The best of the ``refine_candidates`` best coarse candidates, each refined twice on a

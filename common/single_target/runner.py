@@ -28,6 +28,7 @@ from common.single_target.scale import ScaleTracker
 from common.settings import SYNTHETIC_BETA, TrackerSettings
 from common.sources import Frame
 from common.single_target.stabilise import CameraMotionEstimator
+from common.single_target.target_flow import measure_scale_change
 from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world, invert_homography
 from common.tracking.motion import NearConstantVelocity
@@ -166,6 +167,8 @@ class Tracker:
     _local: bool = False
     _first_h: np.ndarray | None = None
     _box_size: tuple[float, float] = (0.0, 0.0)
+    _prev_image: np.ndarray | None = None
+    _restart_time: float = -np.inf
 
     @classmethod
     def start(cls, first: Frame, init_box: tuple[float, float, float, float], settings: TrackerSettings,
@@ -247,7 +250,8 @@ class Tracker:
             seen = m is not None and 0 <= m.image_x < w and 0 <= m.image_y < hgt
             if self.reacquirer is not None and self.reacquirer.lost:
                 seen = False
-            self.scale.predict(self.homography, h, world if seen else None, frame.time)
+            own = self._own_scale_change(frame) if seen else None
+            self.scale.predict(self.homography, h, world if seen else None, frame.time, own)
         self.factor = self.scale.factor()
         if self.motion_cue is not None:
             self.motion_cue.push(frame.time, frame.image, self.stabiliser.homography)
@@ -288,7 +292,21 @@ class Tracker:
         self._world_xy = image_to_world(self.homography, img)
         if not held_point:
             self._adapt(frame, state)
+        if self.stabiliser is not None:
+            self._prev_image = frame.image
         return state
+
+    def _own_scale_change(self, frame: Frame):
+        """The target's own change of size from the previous frame to ``frame``, measured on its pixels
+        in the previous estimate's box (:mod:`common.single_target.target_flow`); None where not used."""
+        cfg = self.settings.scale.flow
+        if not cfg.enabled or self.scale.mode != "search" or self._prev_image is None or self.last_state is None:
+            return None
+        box = self.last_state.oriented_box()
+        if box is None:
+            return None
+        last = self.stabiliser.last
+        return measure_scale_change(cfg, self._prev_image, frame.image, box, None if last is None else last.interframe)
 
     def _left_the_frame(self, state: TrackState, size: tuple[int, int]) -> bool:
         """Whether the filter's MAP has left the frame of a track that was held before (see :meth:`_holding`)."""
@@ -349,6 +367,7 @@ class Tracker:
             pos_std=self.settings.reacquisition.grid_lengths * length_world / 4,
             vel_std=initial_vel_std(self.settings, length_world), theta_std=3.75)
         self.filter.restart(initial)
+        self._restart_time = frame.time
         return det
 
     def _reanchor(self, m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
@@ -375,6 +394,8 @@ class Tracker:
             return
         if frame.time - self._last_adapt_time < ad.interval_s - 1e-9:
             return
+        if frame.time - self._restart_time < ad.hold_after_restart_s - 1e-9:
+            return  # the cloud has not settled since a re-acquisition's restart
         # sample at the frame's matching scale, turned back by the refined angle at the MAP
         obs = self._obs
         x, y = state.map_estimate.image_x, state.map_estimate.image_y

@@ -12,9 +12,10 @@ Settings: :class:`common.settings.ScaleSettings`. The frame is matched resampled
     ``J`` the homography's Jacobian at the target's world position (an object of fixed size on
     the ground looks that much bigger);
   * otherwise predicted from frame to frame by the same Jacobian ratio at the same world point
-    (with a stabilised source that is the camera's own zoom or approach at the target) and
-    corrected every ``search_interval_s`` by a search: the best match over a small
-    neighbourhood of the MAP position and all angles is measured at scales ``s / r, s, s * r``
+    (with a stabilised source that is the camera's own zoom or approach at the target), fused by
+    inverse variance with the target's own change of size where its pixels give one
+    (:mod:`common.single_target.target_flow`), and corrected every ``search_interval_s`` by a
+    search: the best match over a small neighbourhood of the MAP position and all angles is measured at scales ``s / r, s, s * r``
     and a parabola through the three (in log scale) gives the correction, clipped to one step.
 """
 
@@ -25,6 +26,7 @@ import math
 import numpy as np
 
 from common.detector.resample import quantise_factor
+from common.single_target.target_flow import FlowMeasurement
 from common.tracking.camera import homography_jacobian
 
 
@@ -65,6 +67,12 @@ class ScaleTracker:
         self._prev_search: float | None = None
         self.searches = 0
         self.corrections = 0
+        self.flow_measurements = 0
+        """Frames whose prediction took in the target's own change of size."""
+        self.departure_q = cfg.flow.departure_per_sqrt_s ** 2
+        """Variance rate (1/s) of the target's size departing from the camera's zoom, estimated on line."""
+        self._owed = 0
+        """Searches still to make whatever the score (after a restart)."""
 
     # -- the factor -------------------------------------------------------------------------
     def raw_factor(self, s: float | None = None) -> float:
@@ -82,9 +90,17 @@ class ScaleTracker:
 
     # -- per frame --------------------------------------------------------------------------
     def predict(self, prev_h: np.ndarray | None, h: np.ndarray | None, world_xy: np.ndarray | None,
-                time: float | None = None) -> None:
+                time: float | None = None, own: FlowMeasurement | None = None) -> None:
         """Update s_t for a new frame with homography ``h`` (previous ``prev_h``) at ``time`` before
-        matching; ``world_xy`` is the previous estimate's world position."""
+        matching; ``world_xy`` is the previous estimate's world position, ``own`` the target's own
+        change of size measured from its pixels (search mode only).
+
+        The camera's zoom z at the target's ground point predicts the change of log size with a
+        variance q = d^2 dt (the target leaving its ground point's scale); the target's own
+        measurement m has variance r; the change applied is log z + q / (q + r) (m - log z). d^2
+        follows the innovations nu = m - log z: d^2 <- max(0, (1 - a) d^2 + a (nu^2 - r) / dt),
+        a = dt / departure_time_constant_s."""
+        dt = 0.0
         if self.mode == "search" and time is not None:
             dt = max(0.0, float(time) - self._last_time)
             self._last_time = float(time)
@@ -98,7 +114,16 @@ class ScaleTracker:
         else:
             if h is None and prev_h is None:
                 return
-            s = self.s * _sqrt_det(h, world_xy) / _sqrt_det(prev_h, world_xy)
+            zoom = _sqrt_det(h, world_xy) / _sqrt_det(prev_h, world_xy)
+            if own is not None and dt > 0 and math.isfinite(zoom) and zoom > 0:
+                nu = own.dlog - math.log(zoom)
+                a = min(1.0, dt / self.cfg.flow.departure_time_constant_s)
+                self.departure_q = max(0.0, (1 - a) * self.departure_q + a * (nu * nu - own.var) / dt)
+                q = self.departure_q * dt
+                gain = q / (q + own.var)
+                zoom = math.exp(math.log(zoom) + gain * nu)
+                self.flow_measurements += 1
+            s = self.s * zoom
         if math.isfinite(s) and s > 0:
             self.s = s
         self._clip()
@@ -108,10 +133,12 @@ class ScaleTracker:
         return self.u / max(self.cfg.max_upsample, 1.0), self.u / self.cfg.min_factor
 
     def restart(self, s: float) -> None:
-        """Start again at scale ``s`` (a re-acquisition at that scale): no growth rate, no previous search."""
+        """Start again at scale ``s`` (a re-acquisition at that scale): no growth rate, no previous search;
+        the next ``searches_after_restart`` searches are made whatever the score."""
         self.s = float(s)
         self.rate = 0.0
         self._prev_search = None
+        self._owed = self.cfg.searches_after_restart
         self._clip()
 
     def _clip(self) -> None:
@@ -132,10 +159,11 @@ class ScaleTracker:
             return False
         if time - self._last_search < cfg.search_interval_s - 1e-9:
             return False
-        if state.p_visible < cfg.search_min_p_visible or state.score < cfg.search_min_score:
+        if self._owed <= 0 and (state.p_visible < cfg.search_min_p_visible or state.score < cfg.search_min_score):
             self.rate = 0.0  # no measurement: assume no growth rather than extrapolate a stale one
             self._prev_search = None
             return False
+        self._owed = max(0, self._owed - 1)
         self._last_search = float(time)
         x, y = state.map_estimate.image_x, state.map_estimate.image_y
         r = cfg.search_ratio
