@@ -300,7 +300,8 @@ class Tracker:
         """The target's own change of size from the previous frame to ``frame``, measured on its pixels
         in the previous estimate's box (:mod:`common.single_target.target_flow`); None where not used."""
         cfg = self.settings.scale.flow
-        if not cfg.enabled or self.scale.mode != "search" or self._prev_image is None or self.last_state is None:
+        if (not cfg.enabled or self.stabiliser is None or self.scale.mode != "search" or self._prev_image is None
+                or self.last_state is None):
             return None
         box = self.last_state.oriented_box()
         if box is None:
