@@ -31,7 +31,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common.single_target.stabilise import CameraMotionEstimator, StabiliserConfig  # noqa: E402
-from common.single_target.target_flow import TargetFlowConfig, measure_scale_change  # noqa: E402
+from common.single_target.scale import fuse_with_zoom  # noqa: E402
+from common.single_target.target_flow import TargetFlowConfig, measure_scale_change, noise_floor  # noqa: E402
 from common.sources import open_source  # noqa: E402
 from common.tracking.camera import homography_jacobian  # noqa: E402
 
@@ -45,7 +46,7 @@ def probe(path: str, model: str, exclusion_lengths: float, flow_cfg: TargetFlowC
         return None
     gt = np.array([t if t is not None else (np.nan,) * 4 for t in truth], float)
     est = CameraMotionEstimator(StabiliserConfig(model=model))
-    zoom, size, own, var = [], [], [], []
+    zoom, size, own, var, length = [], [], [], [], []
     prev_image = None
     for i, frame in enumerate(src):
         if i == 0:
@@ -62,31 +63,24 @@ def probe(path: str, model: str, exclusion_lengths: float, flow_cfg: TargetFlowC
                                  est.last.interframe) if np.all(np.isfinite(prev)) else None
         own.append(np.nan if m is None else m.dlog)
         # the variance without its floor (the floor is recomputed for each point noise below)
-        floor = (2 * math.sqrt(2) * flow_cfg.point_noise_px / (max(prev[2], prev[3]) *
-                 min(1.0, flow_cfg.work_length_px / max(prev[2], prev[3])))) ** 2 if m is not None else 0.0
-        var.append(np.nan if m is None else m.var - floor)
+        var.append(np.nan if m is None else m.var - noise_floor(flow_cfg.point_noise_px, m.length_px))
+        length.append(np.nan if m is None else m.length_px)
         prev_image = frame.image
     zoom, size = np.array(zoom), np.array(size)
     ok = np.isfinite(zoom) & np.isfinite(size)
-    L = np.array([max(b[2], b[3]) for b in gt[:-1]])
     return {"zoom": np.where(ok, zoom, 0.0), "size": np.where(ok, size, 0.0), "own": np.array(own),
-            "var": np.array(var), "work_length": np.minimum(L, flow_cfg.work_length_px), "dt": 1.0 / src.fps}
+            "var": np.array(var), "work_length": np.array(length), "dt": 1.0 / src.fps}
 
 
 def fused(d: dict, noise: float, time_constant: float, departure: float) -> np.ndarray:
     """The scale state's predicted change of log size per frame: ScaleTracker.predict's fusion with
     the departure's variance estimated from the innovations, for point noise ``noise``."""
-    dt = d["dt"]
-    a = min(1.0, dt / time_constant)
     q_rate = departure ** 2
     out = d["zoom"].copy()
     for i, (z, m) in enumerate(zip(d["zoom"], d["own"])):
-        if not np.isfinite(m):
-            continue
-        r = d["var"][i] + (2 * math.sqrt(2) * noise / d["work_length"][i]) ** 2
-        nu = m - z
-        q_rate = max(0.0, (1 - a) * q_rate + a * (nu * nu - r) / dt)
-        out[i] = z + q_rate * dt / (q_rate * dt + r) * nu
+        if np.isfinite(m):
+            r = d["var"][i] + noise_floor(noise, d["work_length"][i])
+            out[i], q_rate = fuse_with_zoom(z, m, r, q_rate, d["dt"], time_constant)
     return out
 
 

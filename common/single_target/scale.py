@@ -39,6 +39,19 @@ def upsample_factor(box: tuple[float, float, float, float], target_size_px: floa
     return float(min(max_upsample, target_size_px / long_side))
 
 
+def fuse_with_zoom(log_zoom: float, own_dlog: float, own_var: float, departure_q: float, dt: float,
+                   time_constant_s: float) -> tuple[float, float]:
+    """(change of log size, updated departure variance rate): the camera's zoom ``log_zoom`` and the
+    target's own measurement (``own_dlog``, variance ``own_var``) fused by inverse variance, the zoom's
+    variance being ``departure_q * dt`` with ``departure_q`` first updated from this innovation
+    nu = own_dlog - log_zoom: max(0, (1 - a) q + a (nu^2 - r) / dt), a = dt / ``time_constant_s``."""
+    nu = own_dlog - log_zoom
+    a = min(1.0, dt / time_constant_s)
+    departure_q = max(0.0, (1 - a) * departure_q + a * (nu * nu - own_var) / dt)
+    q = departure_q * dt
+    return log_zoom + q / (q + own_var) * nu, departure_q
+
+
 def _sqrt_det(h: np.ndarray | None, world_xy: np.ndarray) -> float:
     j = homography_jacobian(h, np.asarray(world_xy, float))
     d = float(abs(np.linalg.det(j)))
@@ -116,12 +129,9 @@ class ScaleTracker:
                 return
             zoom = _sqrt_det(h, world_xy) / _sqrt_det(prev_h, world_xy)
             if own is not None and dt > 0 and math.isfinite(zoom) and zoom > 0:
-                nu = own.dlog - math.log(zoom)
-                a = min(1.0, dt / self.cfg.flow.departure_time_constant_s)
-                self.departure_q = max(0.0, (1 - a) * self.departure_q + a * (nu * nu - own.var) / dt)
-                q = self.departure_q * dt
-                gain = q / (q + own.var)
-                zoom = math.exp(math.log(zoom) + gain * nu)
+                dlog, self.departure_q = fuse_with_zoom(math.log(zoom), own.dlog, own.var, self.departure_q, dt,
+                                                        self.cfg.flow.departure_time_constant_s)
+                zoom = math.exp(dlog)
                 self.flow_measurements += 1
             s = self.s * zoom
         if math.isfinite(s) and s > 0:

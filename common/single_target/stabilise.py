@@ -80,7 +80,8 @@ class StabiliserConfig(BaseModel):
     pixels)."""
 
 
-def _grey(image: np.ndarray, factor: float) -> np.ndarray:
+def grey(image: np.ndarray, factor: float = 1.0) -> np.ndarray:
+    """``image`` (RGB or grey, any dtype) as contiguous uint8 grey, resized by ``factor`` (INTER_AREA)."""
     img = np.asarray(image)
     if img.ndim == 3:
         if img.dtype != np.uint8:
@@ -132,7 +133,7 @@ class CameraMotionEstimator:
     def start(self, image: np.ndarray) -> np.ndarray:
         w = np.asarray(image).shape[1]
         self._factor = min(1.0, self.config.max_width_px / float(w))
-        self._prev = _grey(image, self._factor)
+        self._prev = grey(image, self._factor)
         self.homography = np.eye(3)
         self._motion = np.eye(3)
         self.frames = 1
@@ -213,7 +214,7 @@ class CameraMotionEstimator:
         if self._prev is None:
             return self.start(image)
         f = self._factor
-        cur = _grey(image, f)
+        cur = grey(image, f)
         ex = None if exclude_xy is None else np.asarray(exclude_xy, float) * f
         G, n, n_in = self.estimate_interframe(self._prev, cur, ex, exclude_radius * f)
         fallback = G is None or not self._plausible(G, (cur.shape[1], cur.shape[0]))

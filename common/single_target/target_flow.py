@@ -37,6 +37,8 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.single_target.stabilise import grey
+
 
 class TargetFlowConfig(BaseModel):
     """The target's own scale change (see :mod:`common.single_target.target_flow`)."""
@@ -89,15 +91,14 @@ class FlowMeasurement:
     """Its variance."""
     points: int
     """Points tracked forward and back."""
+    length_px: float = float("nan")
+    """The target's length in the working pixels it was measured in (the noise floor's L)."""
 
 
-def _grey(img: np.ndarray) -> np.ndarray:
-    a = np.asarray(img)
-    if a.ndim == 3:
-        a = cv2.cvtColor(a if a.dtype == np.uint8 else np.clip(a, 0, 255).astype(np.uint8), cv2.COLOR_RGB2GRAY)
-    elif a.dtype != np.uint8:
-        a = np.clip(a, 0, 255).astype(np.uint8)
-    return a
+def noise_floor(point_noise_px: float, length_px: float) -> float:
+    """The variance a measurement has whatever its points agree on: each point's tracking error
+    ``point_noise_px`` over a target ``length_px`` long (working pixels), (2 sqrt 2 sigma / L)^2."""
+    return (2.0 * math.sqrt(2.0) * point_noise_px / length_px) ** 2
 
 
 def measure_scale_change(cfg: TargetFlowConfig, prev: np.ndarray, cur: np.ndarray,
@@ -129,7 +130,7 @@ def measure_scale_change(cfg: TargetFlowConfig, prev: np.ndarray, cur: np.ndarra
     x1, y1 = min(width, int(math.ceil(cx + margin))), min(height, int(math.ceil(cy + margin)))
     if x1 - x0 < 8 or y1 - y0 < 8:
         return None
-    p_img, c_img = _grey(np.asarray(prev)[y0:y1, x0:x1]), _grey(np.asarray(cur)[y0:y1, x0:x1])
+    p_img, c_img = grey(np.asarray(prev)[y0:y1, x0:x1]), grey(np.asarray(cur)[y0:y1, x0:x1])
     if f < 1.0:
         size = (max(8, round((x1 - x0) * f)), max(8, round((y1 - y0) * f)))
         p_img = cv2.resize(p_img, size, interpolation=cv2.INTER_AREA)
@@ -173,5 +174,5 @@ def measure_scale_change(cfg: TargetFlowConfig, prev: np.ndarray, cur: np.ndarra
     lr = np.log(dq[use] / dp[use])
     med = float(np.median(lr))
     mad = 1.4826 * float(np.median(np.abs(lr - med)))
-    floor = (2.0 * math.sqrt(2.0) * cfg.point_noise_px / (length * f)) ** 2
-    return FlowMeasurement(dlog=med, var=mad ** 2 / n + floor, points=n)
+    return FlowMeasurement(dlog=med, var=mad ** 2 / n + noise_floor(cfg.point_noise_px, length * f), points=n,
+                           length_px=length * f)
