@@ -264,10 +264,13 @@ CAR_MAX_ACCEL_MPS2 = 0.8 * 9.81
 """The hardest manoeuvre a car makes (braking or cornering at about 0.8 g)."""
 REAL_MOTION_NOISE_LENGTHS = round(2.0 * CAR_MAX_ACCEL_MPS2 / CAR_LENGTH_M, 1)
 """sqrt(q) for real footage, target lengths per s^1.5 (see ``motion_noise_lengths``): with the
-white-noise-acceleration model the velocity changes by sqrt(q T) (1 sigma) over T seconds; a
-0.8 g manoeuvre held for T = 1 s (1.7 lengths/s) at 2 sigma gives sqrt(q) = 3.5 lengths/s^1.5.
-Real footage's world unit follows the target's length (stabilised runs, see
-``stabilised_world``), so the same figure holds for a 15 px and a 150 px car."""
+white-noise-acceleration model the velocity changes by sqrt(q T) (1 sigma) over T seconds. Twice a
+0.8 g manoeuvre's 1.7 lengths/s over T = 1 s gives sqrt(q) = 3.5 lengths/s^1.5: such a manoeuvre
+is half a sigma, the rest is the image's own accelerations (a car crossing an oblique view's
+perspective, the stabiliser's residual). The car's physics alone (sqrt(q) = 1.7) kept a passing
+look-alike off uavdt-S1001's car on every seed but lost uav123-car16's accelerating car within 45
+frames (docs/real-footage.md, stop 29). Real footage's world unit follows the target's length
+(stabilised runs, see ``stabilised_world``), so the same figure holds for a 15 px and a 150 px car."""
 REAL_ADAPTATION = TemplateAdaptation(enabled=True, min_score=0.5)
 """Template adaptation for real footage: 0.5 is the 99th percentile of Pang's background Beta(1, 7)
 (1 - 0.5^7), a score the background rarely reaches; an update at most every 0.1 s blending in 10
