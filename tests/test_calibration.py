@@ -26,3 +26,19 @@ def test_calibration_on_synthetic_scene(tmp_path):
 
     plot_calibration(cal, str(tmp_path / "cal.png"))
     assert (tmp_path / "cal.png").stat().st_size > 10_000
+
+
+def test_beta_by_moments_recovers_a_known_beta_and_refuses_what_none_fits():
+    """The moments fit the re-acquisition's threshold and tools/background_scores.py share."""
+    import numpy as np
+    import pytest
+
+    from common.tracking.likelihood import beta_by_moments
+
+    z = np.random.default_rng(4).beta(0.4, 6.0, size=200_000)
+    a, b = beta_by_moments(z)
+    assert a == pytest.approx(0.4, rel=0.03) and b == pytest.approx(6.0, rel=0.03)
+    assert beta_by_moments(np.full(10, 0.2)) is None  # no spread
+    assert beta_by_moments(np.array([0.3])) is None
+    assert beta_by_moments(np.array([0.1, np.nan, 0.2])) is None
+    assert beta_by_moments(np.array([0.0, 1.0, 0.0, 1.0])) is None  # variance m(1 - m): no Beta

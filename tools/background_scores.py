@@ -24,13 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from common.settings import profile_for  # noqa: E402
 from common.single_target.runner import Tracker  # noqa: E402
 from common.sources import open_source  # noqa: E402
-
-
-def moments_beta(z: np.ndarray) -> tuple[float, float]:
-    """(a, b) of the Beta with the sample's mean and variance."""
-    m, v = float(z.mean()), float(z.var())
-    c = m * (1 - m) / v - 1
-    return m * c, (1 - m) * c
+from common.tracking.likelihood import beta_by_moments  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -61,7 +55,7 @@ def main(argv=None) -> int:
         z = np.clip(scores[ok].ravel(), 1e-5, 1 - 1e-5)
         best = scores[ok].max(axis=1)
         own, _ = tracker.detector.scale_grid(frame, k, centre[None])
-        ba, bb = moments_beta(z)
+        ba, bb = beta_by_moments(z)
         print(f"frame {i}: k {k:.3f}, {int(ok.sum())} points x 48 angles: mean {z.mean():.3f} sd {z.std():.3f} "
               f"q50/90/99 {np.quantile(z, 0.5):.3f}/{np.quantile(z, 0.9):.3f}/{np.quantile(z, 0.99):.3f} "
               f"Beta({ba:.2f}, {bb:.2f}); best angle q50/90 {np.quantile(best, 0.5):.3f}/{np.quantile(best, 0.9):.3f}; "

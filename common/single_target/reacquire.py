@@ -64,6 +64,7 @@ from scipy.stats import beta
 from common.detector.layout import N_ROWS
 from common.detector.resample import quantise_factor
 from common.tracking.camera import apply_homography
+from common.tracking.likelihood import beta_by_moments
 from common.tracking.observation import GRID_ANGLES_DEG
 
 
@@ -456,9 +457,7 @@ class Reacquirer:
         n = max(len(maxima), 1)
         thr = acceptance_threshold(cfg.false_alarms_per_s, dt, n, self.background)
         bg = np.sort(np.clip(maxima, 1e-6, 1 - 1e-6))[: max(int(0.95 * len(maxima)), 0)]
-        if len(bg) >= 20:
-            m, v = float(bg.mean()), float(bg.var())
-            if v > 0 and m * (1 - m) > v:
-                c = m * (1 - m) / v - 1
-                thr = max(thr, acceptance_threshold(cfg.false_alarms_per_s, dt, n, (m * c, (1 - m) * c), 1))
+        fit = beta_by_moments(bg) if len(bg) >= 20 else None
+        if fit is not None:
+            thr = max(thr, acceptance_threshold(cfg.false_alarms_per_s, dt, n, fit, 1))
         return thr

@@ -75,6 +75,19 @@ class BetaRatioLikelihood(BaseModel):
         return np.stack([np.zeros_like(lr), lr], axis=-1)
 
 
+def beta_by_moments(z: np.ndarray) -> tuple[float, float] | None:
+    """(a, b) of the Beta with the mean and variance of the sample ``z`` (values in (0, 1)); None
+    when no Beta has them (fewer than two values, none spread, or a variance a Beta cannot have)."""
+    z = np.asarray(z, dtype=float).reshape(-1)
+    if z.size < 2 or not np.all(np.isfinite(z)):
+        return None
+    m, v = float(z.mean()), float(z.var())
+    if not (0.0 < m < 1.0) or not (0.0 < v < m * (1.0 - m)):
+        return None
+    c = m * (1.0 - m) / v - 1.0
+    return m * c, (1.0 - m) * c
+
+
 class ExponentialScoreLikelihood(BaseModel):
     """Nelson 2008 eq. 15:  p(z_t | X_t) = exp(k * Pi)  if V_t = 1,  exp(NV_c)  otherwise.
 
