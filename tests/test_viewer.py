@@ -149,6 +149,12 @@ def test_recording_cut_anywhere_converts(tmp_path):
         cut.write_bytes(data[:end])
         stats = mcap_to_rrd(cut, tmp_path / f"cut{i}.rrd")
         assert stats["truncated"], end
+    # cut inside the closing magic, after the footer: every record whole, the file still cut
+    for end in (len(data) - 8, len(data) - 3):
+        cut = tmp_path / f"magic{end}.mcap"
+        cut.write_bytes(data[:end])
+        assert mcap_to_rrd(cut, tmp_path / f"magic{end}.rrd")["truncated"], end
+    assert not mcap_to_rrd(src, tmp_path / "full.rrd")["truncated"]  # the whole file is not
 
 
 def test_two_loggers_in_one_process(tmp_path):

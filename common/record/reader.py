@@ -130,7 +130,7 @@ def _chunk_records(body: bytes, report: ReadReport) -> Iterator[tuple[int, memor
 
 def _top_records(fh, size: int, report: ReadReport) -> Iterator[tuple[int, bytes]]:
     """(opcode, record body) of the file's records in order, a chunk's records in its place;
-    stops at the footer, or where the file is cut (``report.cut``)."""
+    stops at the footer (followed by the closing magic), or where the file is cut (``report.cut``)."""
     if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
         raise RecordingError("not an MCAP file (no MCAP magic)")
     pos = len(MCAP_MAGIC)
@@ -151,6 +151,9 @@ def _top_records(fh, size: int, report: ReadReport) -> Iterator[tuple[int, bytes
             if opcode == _OP_CHUNK:
                 yield from _chunk_records(body, report)
             elif opcode == _OP_FOOTER:
+                tail = fh.read(len(MCAP_MAGIC))
+                if tail != MCAP_MAGIC:  # cut inside the closing magic: every record is whole
+                    report.cut = f"the file ends at byte {pos + 9 + length + len(tail)} without its closing magic"
                 return
             else:
                 yield opcode, body
