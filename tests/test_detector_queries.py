@@ -92,3 +92,65 @@ def test_a_different_seed_differs(seed):
     diff = [not same_estimate(estimate_msg(f.index, 0, a.step(f), "rbpf"), estimate_msg(f.index, 0, b.step(f), "rbpf"))
             for f in frames]
     assert any(diff)
+
+
+def test_one_off_queries_naming_one_crop_share_its_preparation_and_numbers():
+    """The re-acquisition's tile and its refinements name one crop box: the detector prepares it once
+    per frame and client, and every query's numbers are those of a fresh crop over the same box (the
+    sharing changes no number); a query without a crop gets its own, smaller crop (other numbers:
+    the control that the box matters); a crop on a query that is not one-off, a crop of three values,
+    one with NaN or one upside down is BAD_REQUEST."""
+    from common.detector.client import one_off_grid
+    from common.detector.matcher import PolarMatcher
+    from common.detector.template import Template
+
+    f = open_source("synthetic:1", n_frames=1).frame(0)
+    core = DetectorCore()
+    core.add_frame(0, f.image, 0.0)
+    cx, cy = f.truth.centre
+    x, y, w, h = f.truth.box
+    k = 1.5
+    rep, tm = core.handle(ScoreQuery(request_id=1, client="t", kind=ScoreQuery.TEMPLATE, count=1, factor=k,
+                                     hypotheses=pack(np.array([[cx, cy, x, y, w, h]]))))
+    matcher = PolarMatcher(msg_to_template(tm))
+    crop = (cx - 120.0, cy - 90.0, cx + 120.0, cy + 90.0)
+    coarse = np.array([[cx + dx, cy + dy] for dx in (-60.0, 0.0, 60.0) for dy in (-45.0, 0.0, 45.0)])
+    fine = np.array([[cx + dx, cy + dy] for dx in (-3.0, 0.0, 3.0) for dy in (-3.0, 0.0, 3.0)])
+
+    def grid(xy, **kw):
+        q = ScoreQuery(request_id=2, client="t", kind=ScoreQuery.GRID, count=len(xy), template_version=1,
+                       factor=k, one_off=True, hypotheses=pack(xy), **kw)
+        return core.handle(q)[0]
+
+    for xy in (coarse, fine):
+        r = grid(xy, crop=list(crop))
+        assert r.status == ScoreReply.OK
+        want, ok = one_off_grid(0.0, f.image, matcher, k, xy, crop)  # a fresh crop over the box
+        assert np.array_equal(np.frombuffer(r.scores, "<f8").reshape(len(xy), -1), want)
+        assert np.array_equal(np.frombuffer(r.valid, np.uint8).astype(bool), ok)
+    assert len(core.one_off.of("/t", 0)) == 1  # both queries: one preparation
+    alone = np.frombuffer(grid(fine).scores, "<f8").reshape(len(fine), -1)
+    shared = np.frombuffer(grid(fine, crop=list(crop)).scores, "<f8").reshape(len(fine), -1)
+    assert not np.array_equal(alone, shared) and np.allclose(alone, shared, atol=0.02)
+    before = core.counters["malformed"]
+    bad = [grid(fine, crop=[0.0, 0.0, 10.0]), grid(fine, crop=[0.0, float("nan"), 10.0, 10.0]),
+           grid(fine, crop=[10.0, 0.0, 0.0, 10.0])]
+    q = ScoreQuery(request_id=3, client="t", kind=ScoreQuery.AT, count=1, template_version=1, factor=k,
+                   hypotheses=pack(np.array([[cx, cy, 0.0]])), crop=list(crop))
+    bad.append(core.handle(q)[0])
+    assert all(r.status == ScoreReply.BAD_REQUEST and r.error for r in bad)
+    assert core.counters["malformed"] == before + 4
+
+
+def test_crop_box_is_clipped_to_the_frame_joined_with_the_hypotheses_and_capped():
+    from common.detector.resample import CROP_MARGIN_PX, crop_box
+
+    size = (640, 480)
+    assert crop_box((100.0, 100.0, 110.0, 110.0), None, 1.0, size) is None
+    assert crop_box((100.0, 100.0, 110.0, 110.0), (-50.0, 90.0, 200.0, 900.0), 1.0, size) == (0.0, 90.0, 200.0, 479.0)
+    assert crop_box((300.0, 20.0, 310.0, 30.0), (100.0, 100.0, 200.0, 200.0), 1.0, size) == (100.0, 20.0, 310.0, 200.0)
+    # the cap: a box whose resampled crop with its margins would pass max_crop_px is not taken
+    side = 200.0
+    need = (2.0 * side + 2 * CROP_MARGIN_PX) ** 2
+    assert crop_box((0.0, 0.0, 1.0, 1.0), (0.0, 0.0, side, side), 2.0, size, max_crop_px=need) is not None
+    assert crop_box((0.0, 0.0, 1.0, 1.0), (0.0, 0.0, side, side), 2.0, size, max_crop_px=need - 1) is None

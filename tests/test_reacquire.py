@@ -259,7 +259,7 @@ class _Scale:
 
 def _grid_peaked_at(x0, y0):
     """Scores peaked at (x0, y0), at 45 degrees, and at factor 1 (scale 1)."""
-    def grid_at(k, xy):
+    def grid_at(k, xy, crop=None):
         d = np.hypot(xy[:, 0] - x0, xy[:, 1] - y0)
         scores = np.tile(np.exp(-d / 10.0 - abs(np.log(k)))[:, None], (1, 48))
         scores[:, 6] += 0.1  # the best angle: 45 degrees
@@ -284,7 +284,7 @@ def test_the_strongest_mover_restarts_the_filter_once_confirmed():
     # grid alone lands up to 2.5 px off either way)
     assert (det.x, det.y) == pytest.approx((302.0, 201.0), abs=0.4) and det.theta_deg == 45.0 and det.scale == 1.0
 
-    flat = lambda k, xy: (np.zeros((len(xy), 48)), np.ones(len(xy), bool))  # nothing for the tiles
+    flat = lambda k, xy, crop=None: (np.zeros((len(xy), 48)), np.ones(len(xy), bool))  # nothing for the tiles
     r2 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
     r2.observe(0.0, _state(0.0, 0.1), 1.0)
     assert r2.search(0.1, flat, _Scale, _Movers((300.0, 200.0))) is None
@@ -309,7 +309,7 @@ def test_a_mover_the_matcher_cannot_score_yet_stays_pending():
     def grid_on(x0):
         peaked = _grid_peaked_at(x0, 200.0)
 
-        def grid_at(k, xy):
+        def grid_at(k, xy, crop=None):
             scores, _ = peaked(k, xy)
             return scores, xy[:, 0] >= 50.0  # the footprint's support
         return grid_at
@@ -355,3 +355,44 @@ def test_acceptance_threshold_is_the_background_quantile():
     busy = rng.beta(8.0, 6.0, 500)
     assert r._threshold(0.1, calm) == pytest.approx(acceptance_threshold(0.05, 0.1, 500, (0.25, 8.08)), rel=0.05)
     assert r._threshold(0.1, busy) > r._threshold(0.1, calm) + 0.05
+
+
+def test_the_searches_refinements_are_matched_on_the_crop_of_their_coarse_query():
+    """Every query of a search names a crop box that holds all its points (so the detector prepares
+    the box once and the refinements reuse it: common.detector.client.one_off_grid): the tiles'
+    refinements name their tile's box, the confirming frame's its grid's, a mover's its own at each
+    scale; over a tile search and a confirmation, the queries name fewer boxes than they are
+    (each box shared), and a detection is made at the peak (the crop changes nothing for this
+    stand-in matcher)."""
+    cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0)
+    peaked = _grid_peaked_at(302.0, 201.0)
+    queries = []
+
+    def grid_at(k, xy, crop=None):
+        queries.append((k, np.array(xy, float), crop))
+        return peaked(k, xy)
+
+    r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r.observe(0.0, _state(0.0, 0.1, x=300.0, y=200.0), 1.0)
+    det = None
+    for i in range(1, 30):
+        det = r.search(0.1 * i, grid_at, _Scale, None)
+        if det is not None:
+            break
+    assert det is not None and (det.x, det.y) == pytest.approx((302.0, 201.0), abs=0.5)
+    assert len(queries) > 3 and all(c is not None for _, _, c in queries)
+    for k, xy, c in queries:
+        assert np.all((xy[:, 0] >= c[0]) & (xy[:, 0] <= c[2]) & (xy[:, 1] >= c[1]) & (xy[:, 1] <= c[3])), c
+    boxes = {(k, c) for k, _, c in queries}
+    assert len(boxes) < len(queries)
+    # the movers: the grid about the mover and the refinement at the confirming frame share a box
+    queries.clear()
+    r2 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r2.observe(0.0, _state(0.0, 0.1), 1.0)
+    r2.search(0.1, grid_at, _Scale, _Movers((300.0, 200.0)))
+    n_first = len(queries)
+    assert r2.search(0.2, grid_at, _Scale, _Movers((305.0, 200.0))) is not None
+    confirm = queries[n_first:]
+    for k, xy, c in confirm:
+        assert np.all((xy[:, 0] >= c[0]) & (xy[:, 0] <= c[2]) & (xy[:, 1] >= c[1]) & (xy[:, 1] <= c[3])), c
+    assert len({(k, c) for k, _, c in confirm}) < len(confirm)

@@ -10,7 +10,8 @@ single-target tracker:
 - ``build_template`` -> TEMPLATE at the factor (the reply carries the template and its version);
 - the frame observation's ``score_at`` / ``score_grid`` -> AT / GRID at the factor;
   ``refine_peak`` (and the ``pmatrix_at`` that follows it at the same point) -> one PEAK;
-- ``scale_grid`` -> GRID with ``one_off`` (a fresh resampled crop, as the in-process search);
+- ``scale_grid`` -> GRID with ``one_off`` (a resampled crop of its own, as the in-process search, over
+  the ``crop`` box it names if any);
 - ``use_template`` -> the next version, handed to ``publish`` (the tracker service puts it on the
   ``template`` key, where the detector installs it); every query carries the version it needs.
 
@@ -75,10 +76,11 @@ class QueryDetector:
         """Template version the queries carry."""
         self._ids = itertools.count(1)
 
-    def query(self, frame, kind: int, hyps: np.ndarray, k: float, one_off: bool = False) -> ScoreReply:
+    def query(self, frame, kind: int, hyps: np.ndarray, k: float, one_off: bool = False,
+              crop: tuple[float, float, float, float] | None = None) -> ScoreReply:
         """The OK reply to one query about ``frame``; ObservationUnavailable otherwise."""
         q = score_query(next(self._ids), self.client, frame.index, kind, hyps, template_version=self.version,
-                        factor=float(k), one_off=one_off)
+                        factor=float(k), one_off=one_off, crop=[] if crop is None else [float(v) for v in crop])
         rep = self.ask(q)
         if rep is None:
             raise ObservationUnavailable(f"no reply for frame {frame.index}")
@@ -104,9 +106,10 @@ class QueryDetector:
     def observation(self, frame, homography, k: float) -> "QueryObservation":
         return QueryObservation(self, frame, homography, k)
 
-    def scale_grid(self, frame, k: float, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def scale_grid(self, frame, k: float, xy: np.ndarray,
+                   crop: tuple[float, float, float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
         xy = check_hypotheses(xy, 2)
-        rep = self.query(frame, ScoreQuery.GRID, xy, k, one_off=True)
+        rep = self.query(frame, ScoreQuery.GRID, xy, k, one_off=True, crop=crop)
         return reply_scores(rep, len(xy), N_ANGLES)
 
 

@@ -139,6 +139,34 @@ def _inside_by(xy: np.ndarray, r: float, size: tuple[int, int]) -> np.ndarray:
     return (xy[:, 0] >= r) & (xy[:, 0] <= w - 1 - r) & (xy[:, 1] >= r) & (xy[:, 1] <= h - 1 - r)
 
 
+def crop_box(box: tuple[float, float, float, float], crop, k: float, size: tuple[int, int],
+             max_crop_px: float = MAX_CROP_PX) -> tuple[float, float, float, float] | None:
+    """The box (x0, y0, x1, y1, original pixels) a query naming ``crop`` is prepared over: ``crop``,
+    clipped to the ``size`` = (width, height) frame, joined with the hypotheses' ``box``. None (the
+    hypotheses' box alone) without a crop, or where the joined box at factor ``k`` would pass
+    ``max_crop_px`` resampled pixels with its margins."""
+    if crop is None or len(crop) == 0:
+        return None
+    w, h = size
+    c = (min(max(float(crop[0]), 0.0), w - 1.0), min(max(float(crop[1]), 0.0), h - 1.0),
+         min(max(float(crop[2]), 0.0), w - 1.0), min(max(float(crop[3]), 0.0), h - 1.0))
+    out = (min(c[0], box[0]), min(c[1], box[1]), max(c[2], box[2]), max(c[3], box[3]))
+    side_x = k * (out[2] - out[0]) + 2 * CROP_MARGIN_PX
+    side_y = k * (out[3] - out[1]) + 2 * CROP_MARGIN_PX
+    return out if side_x * side_y <= max_crop_px else None
+
+
+def check_crop(crop) -> tuple[float, float, float, float] | None:
+    """A query's crop box as a tuple (None when empty); ValueError unless it is four finite values
+    with x0 <= x1 and y0 <= y1."""
+    if crop is None or len(crop) == 0:
+        return None
+    c = tuple(float(v) for v in crop)
+    if len(c) != 4 or not all(math.isfinite(v) for v in c) or c[0] > c[2] or c[1] > c[3]:
+        raise ValueError(f"crop must be four finite values x0 <= x1, y0 <= y1, got {list(c)}")
+    return c
+
+
 def sample_template_pmatrix(image: np.ndarray, centre: tuple[float, float], k: float) -> np.ndarray:
     """The (12, 34 C) P-matrix at ``centre`` (original pixels) of ``image`` resampled by ``k``."""
     xy = np.array([[float(centre[0]), float(centre[1])]])
@@ -157,9 +185,15 @@ class ResampledObservation:
 
     def __init__(self, key: object, time: float, image: np.ndarray, matcher: PolarMatcher, k: float,
                  homography: np.ndarray | None = None, max_crop_px: float = MAX_CROP_PX,
-                 whole_footprint: bool = False):
+                 whole_footprint: bool = False, crop: tuple[float, float, float, float] | None = None,
+                 regions: dict | None = None):
         """``whole_footprint``: score only hypotheses whose whole footprint lies in the frame
-        (:func:`footprint_inside`) instead of those whose target does (:func:`footprint_valid`)."""
+        (:func:`footprint_inside`) instead of those whose target does (:func:`footprint_valid`).
+
+        ``crop`` (x0, y0, x1, y1, original pixels): prepare the crop over this box together with the
+        hypotheses' box (:func:`crop_box`), taking it from ``regions`` (a dict shared by the
+        queries of one frame) when a query before prepared the same box: the preparation is a
+        function of the frame, ``k`` and the box alone, so sharing it changes no number."""
         self.key = key
         self.whole_footprint = bool(whole_footprint)
         self.time = float(time)
@@ -174,12 +208,25 @@ class ResampledObservation:
         self.dropped = 0
         """Hypotheses declared out of support to keep the crop within ``max_crop_px``."""
         self._region: ResampledRegion | None = None
+        self.crop = crop
+        self.regions = regions
 
     def region_for(self, xy: np.ndarray) -> ResampledRegion:
         """A prepared crop covering the hypotheses ``xy`` (N, 2), reused when it already does."""
         if self._region is not None and self._region.covers(xy):
             return self._region
         box = (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()), float(xy[:, 1].max()))
+        shared = crop_box(box, self.crop, self.k, self.image_size, self.max_crop_px)
+        if shared is not None:
+            key = (self.k, shared)
+            region = None if self.regions is None else self.regions.get(key)
+            if region is None:
+                region = ResampledRegion(self.image, self.k, shared)
+                self.preparations += 1
+                if self.regions is not None:
+                    self.regions[key] = region
+            self._region = region
+            return region
         if self._region is not None:
             # grow rather than replace: later queries of this frame usually fall in the old area
             x0, y0 = (self._region.offset[0] + CROP_MARGIN_PX) / self.k, (self._region.offset[1] + CROP_MARGIN_PX) / self.k

@@ -19,9 +19,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.detector import FrameCache, PolarMatcher, Template
-from common.detector.client import frame_observation, make_template, one_off_grid
+from common.detector.client import OneOffRegions, frame_observation, make_template, one_off_grid
 from common.detector.layout import N_ANGLES
 from common.detector.observation import DetectorObservation
+from common.detector.resample import check_crop
 from common.msgs import ScoreQuery, ScoreReply, pack, unpack
 from common.msgs import Template as TemplateMsg
 from common.msgs.convert import PART_KINDS, REPLY_DTYPES, query_hypotheses, template_to_msg
@@ -153,6 +154,8 @@ class DetectorCore:
         self.observations: OrderedDict[tuple, object] = OrderedDict()
         """(client, frame, factor, template version) -> the frame's observation, kept so the
         template adaptation's PEAK reuses the region the filter's query prepared (as in-process)."""
+        self.one_off = OneOffRegions(self.settings.max_clients)
+        """Per querier, the crops its one-off queries of its latest frame named by box."""
         self.counters = Counters("detector")
         self.evidence = EvidenceCache(min(4, self.settings.max_frames))
         """The latest frames' integral histograms (multi-target part evidence; tens of MB each, so
@@ -264,10 +267,14 @@ class DetectorCore:
             if matcher is None:
                 rep.status, rep.error = ScoreReply.NO_TEMPLATE, f"no template version {q.template_version}"
                 return rep, None
+            if len(q.crop) and not q.one_off:
+                raise ValueError("crop is for one_off GRID queries only")
             if q.one_off:
                 if q.kind != ScoreQuery.GRID:
                     raise ValueError("one_off is for GRID queries only")
-                scores, valid = one_off_grid(time_s, image, matcher, k, hyps)
+                crop = check_crop(q.crop)
+                regions = None if crop is None else self.one_off.of(f"{querier}/{q.client}", q.frame_index)
+                scores, valid = one_off_grid(time_s, image, matcher, k, hyps, crop, regions)
                 rep.angles = N_ANGLES
             else:
                 obs = self.observation(q, k, matcher, image, time_s, querier)

@@ -171,7 +171,7 @@ class MotionCue:
             return False
         # current-image pixels -> analysis pixels
         to_out = np.array([[f, 0, -x0 * f], [0, f, -y0 * f], [0, 0, 1.0]])
-        cur, _ = _warped(grey, to_out, level, (out_w, out_h))
+        cur, _ = _warped(grey, to_out, level, (out_w, out_h), coverage=False)
         diffs = []
         for _, past, h_past in pair:
             try:
@@ -265,11 +265,12 @@ class MotionCue:
         return -(norm.logsf(z) + math.log(2.0))
 
 
-def _warped(image: np.ndarray, m: np.ndarray, level: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def _warped(image: np.ndarray, m: np.ndarray, level: int, size: tuple[int, int],
+            coverage: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """``image`` mapped by ``m`` (its pixels -> output pixels) onto an output of ``size``, float32, and
-    the output pixels the image covers. Only the part of ``image`` that maps into the output is
-    read, taken down ``level`` Gaussian pyramid levels first (``m`` maps full-resolution pixels:
-    no aliasing at the analysis resolution)."""
+    the output pixels the image covers (None without ``coverage``). Only the part of ``image`` that
+    maps into the output is read, taken down ``level`` Gaussian pyramid levels first (``m`` maps
+    full-resolution pixels: no aliasing at the analysis resolution)."""
     height, width = image.shape[:2]
     out_w, out_h = size
     step = 2 ** level
@@ -290,7 +291,9 @@ def _warped(image: np.ndarray, m: np.ndarray, level: int, size: tuple[int, int])
         crop = cv2.pyrDown(crop)  # pixel u of the level is pixel 2u of the one below
     mc = m @ np.array([[step, 0, x0], [0, step, y0], [0, 0, 1.0]])
     out = cv2.warpPerspective(crop, mc, (out_w, out_h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if not coverage:
+        return out, None
     # covered: the output pixels whose source lies inside the image (not only inside the crop)
-    inside = cv2.warpPerspective(np.ones(crop.shape[:2], np.float32), mc, (out_w, out_h), flags=cv2.INTER_NEAREST,
-                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.5
+    inside = cv2.warpPerspective(np.ones(crop.shape[:2], np.uint8), mc, (out_w, out_h), flags=cv2.INTER_NEAREST,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
     return out, inside

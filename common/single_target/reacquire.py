@@ -22,7 +22,8 @@ confident detection to restart the filter on.
   ``grid_lengths`` target lengths apart at all 48 angles, at one scale per sweep of the frame
   (every other sweep at the last held scale, the others ``scale_ratio`` smaller and larger, ...
   to ``scale_steps`` ratios either way, within the range the matching can follow). The CPU per frame is
-  bounded by the tile size: one prepared ``tile_px`` square crop and its candidates.
+  bounded by the tile size: one prepared ``tile_px`` square crop and its candidates (the
+  refinement of the tile's best candidates is matched on the same crop, prepared once).
 - **Movers** (where the tracker has the moving-target cue, :mod:`common.single_target.motion_cue`):
   before the tiles, every searched frame, the whole frame's target-sized boxes are scored by their
   motion energy (cheap: box sums of one difference image), at one scale of the sweep per frame.
@@ -114,6 +115,26 @@ def acceptance_threshold(false_alarms_per_s: float, dt: float, hypotheses: int, 
     orientation; ``orientations=1`` for a Beta of the best score over all angles)."""
     p = false_alarms_per_s * max(dt, 1e-3) / max(1, hypotheses * orientations)
     return float(beta.isf(min(max(p, 1e-15), 0.5), *background))
+
+
+_REFINE_REACH = 2 * (0.25 + 0.0625)
+"""How far :meth:`Reacquirer._refine`'s two 5x5 stages reach beyond a coarse candidate, in coarse
+grid steps: a coarse query matched on its points' box grown by this much leaves the refinement
+inside the same crop, so the three queries share one preparation."""
+
+
+def _crop_about(xy: np.ndarray, reach: float) -> tuple[float, float, float, float]:
+    """The box (x0, y0, x1, y1) of the points ``xy`` (N, 2) grown by ``reach`` on every side."""
+    return (float(xy[:, 0].min() - reach), float(xy[:, 1].min() - reach),
+            float(xy[:, 0].max() + reach), float(xy[:, 1].max() + reach))
+
+
+def _mover_crop(x: float, y: float, length: float) -> tuple[float, float, float, float]:
+    """The box a mover at (x, y) is matched on at a target length ``length``: the 5x5 grid of
+    :meth:`Reacquirer._match_mover` (half a length either way) and the refinement about its best
+    point (a quarter-length step: :data:`_REFINE_REACH` of it beyond), so both share one crop."""
+    r = 0.5 * length + _REFINE_REACH * 0.25 * length
+    return (x - r, y - r, x + r, y + r)
 
 
 class Reacquirer:
@@ -253,8 +274,9 @@ class Reacquirer:
     def search(self, time: float, grid_at, scale_tracker, movers=None) -> Detection | None:
         """Search this frame; a detection confirmed on two frames in a row, or None.
 
-        ``grid_at(k, xy)`` -> (scores (N, 48), valid (N,)) at factor ``k`` (the scale search's
-        one-off grids); ``scale_tracker`` gives the matching factor and the target's length;
+        ``grid_at(k, xy, crop)`` -> (scores (N, 48), valid (N,)) at factor ``k`` (the scale search's
+        one-off grids; the queries of a frame naming the same ``crop`` box share its preparation);
+        ``scale_tracker`` gives the matching factor and the target's length;
         ``movers`` is the tracker's moving-target cue with this frame pushed
         (:class:`common.single_target.motion_cue.MotionCue`: ``movers(s)`` -> the frame's boxes and
         their motion z-scores at scale s, ``blob_scale(xy)``; None: no cue, the tiles only).
@@ -279,9 +301,10 @@ class Reacquirer:
             off = np.arange(-3, 4) * (step / 1.5)
             gx, gy = np.meshgrid(det.x + off, det.y + off)
             xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
-            again, maxima = self._best(grid_at, k, xy, det.scale)
+            crop = _crop_about(xy, _REFINE_REACH * step / 1.5)
+            again, maxima = self._best(grid_at, k, xy, det.scale, crop)
             if again is not None:
-                again = self._refine(grid_at, k, xy, maxima, step / 1.5, det.scale)
+                again = self._refine(grid_at, k, xy, maxima, step / 1.5, det.scale, crop)
                 if again.score >= thr:
                     return self._at_best_scale(again, grid_at, scale_tracker)
         best: tuple[Detection, float] | None = None
@@ -303,10 +326,11 @@ class Reacquirer:
                 continue
             gx, gy = np.meshgrid(xs, ys)
             xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
-            det, maxima = self._best(grid_at, k, xy, s)
+            crop = _crop_about(xy, _REFINE_REACH * step)  # the refinement reuses the tile's crop
+            det, maxima = self._best(grid_at, k, xy, s, crop)
             if det is None:
                 continue
-            det = self._refine(grid_at, k, xy, maxima, step, s)
+            det = self._refine(grid_at, k, xy, maxima, step, s, crop)
             thr = self._threshold(dt, maxima)
             if det.score >= thr and (best is None or det.score > best[0].score):
                 best = (det, thr)
@@ -344,7 +368,8 @@ class Reacquirer:
             # the grid is a quarter of a target length apart, the matcher's peak narrower: refine
             step = 0.25 * scale_tracker.length_px * det.scale
             k = quantise_factor(scale_tracker.raw_factor(det.scale), scale_tracker.cfg.steps_per_octave)
-            return self._refine(grid_at, k, np.array([[det.x, det.y]]), np.array([det.score]), step, det.scale)
+            return self._refine(grid_at, k, np.array([[det.x, det.y]]), np.array([det.score]), step, det.scale,
+                                _mover_crop(x, y, scale_tracker.length_px * det.scale))
         # the scale: the blob spans the target and its motion smear (and blur), so at most the
         # blob's; the matcher picks among the ratios below it
         blob = movers.blob_scale((x, y))
@@ -371,7 +396,7 @@ class Reacquirer:
             step = scale_tracker.length_px * s
             pts = np.array([x, y]) + step * grid
             k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
-            scores, ok = grid_at(k, pts)
+            scores, ok = grid_at(k, pts, _mover_crop(x, y, step))
             per = np.where(np.asarray(ok, bool)[:, None], np.asarray(scores, float), -np.inf)
             if not np.isfinite(per).any():
                 continue
@@ -396,16 +421,19 @@ class Reacquirer:
                 continue
             k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
             step = max(0.25 * scale_tracker.length_px * s, 1.0)
-            cand = self._refine(grid_at, k, np.array([[det.x, det.y]]), np.array([det.score]), step, s)
+            pt = np.array([[det.x, det.y]])
+            cand = self._refine(grid_at, k, pt, np.array([det.score]), step, s, _crop_about(pt, _REFINE_REACH * step))
             if cand.score > best.score:
                 best = cand
         return best
 
-    def _refine(self, grid_at, k: float, xy: np.ndarray, maxima: np.ndarray, step: float, s: float) -> Detection:
+    def _refine(self, grid_at, k: float, xy: np.ndarray, maxima: np.ndarray, step: float, s: float,
+                crop=None) -> Detection:
         """The best of the ``refine_candidates`` best coarse candidates, each refined twice on a
         5x5 grid (a quarter, then a sixteenth of the coarse spacing), every candidate's grid in one
         query per stage: the matcher's peak is narrower than the coarse grid, so a target between
-        two candidates scores low there."""
+        two candidates scores low there. ``crop``: the box both stages are matched on (the coarse
+        query's, whose preparation they then share; see :data:`_REFINE_REACH`)."""
         centres = xy[np.argsort(-maxima, kind="stable")[: self.cfg.refine_candidates]]
         best: Detection | None = None
         for frac in (0.25, 0.0625):
@@ -413,7 +441,7 @@ class Reacquirer:
             gx, gy = np.meshgrid(off, off)
             grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
             pts = (centres[:, None, :] + grid[None, :, :]).reshape(-1, 2)
-            scores, ok = grid_at(k, pts)
+            scores, ok = grid_at(k, pts, crop)
             per = np.where(np.asarray(ok, bool)[:, None], np.asarray(scores, float), -np.inf)
             per = per.reshape(len(centres), len(grid), -1)
             flat = per.reshape(len(centres), -1)
@@ -431,10 +459,10 @@ class Reacquirer:
         return best
 
     @staticmethod
-    def _best(grid_at, k: float, xy: np.ndarray, s: float) -> tuple[Detection | None, np.ndarray]:
-        """The best-scoring (position, angle) of ``xy`` at factor ``k``, and each position's best
-        score (-inf out of support)."""
-        scores, ok = grid_at(k, xy)
+    def _best(grid_at, k: float, xy: np.ndarray, s: float, crop=None) -> tuple[Detection | None, np.ndarray]:
+        """The best-scoring (position, angle) of ``xy`` at factor ``k`` (matched on ``crop``, see
+        :meth:`_refine`), and each position's best score (-inf out of support)."""
+        scores, ok = grid_at(k, xy, crop)
         ok = np.asarray(ok, bool)
         scores = np.where(ok[:, None], np.asarray(scores, float), -np.inf)
         if not np.isfinite(scores).any():

@@ -27,7 +27,7 @@ from common.single_target.reacquire import Detection, Reacquirer
 from common.single_target.scale import ScaleTracker
 from common.settings import SYNTHETIC_BETA, TrackerSettings
 from common.sources import Frame
-from common.single_target.stabilise import CameraMotionEstimator
+from common.single_target.stabilise import CameraMotionEstimator, grey
 from common.single_target.target_flow import measure_scale_change
 from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world, invert_homography
@@ -125,6 +125,13 @@ def _rotation_deg(j: np.ndarray) -> float:
 _SOURCE = object()
 
 
+def _shared_grey(image: np.ndarray) -> np.ndarray:
+    """A uint8 colour frame as the grey image the stabiliser and the moving-target cue both take
+    (each would convert it the same way: converted once a frame); any other frame as it is."""
+    img = np.asarray(image)
+    return grey(img) if img.dtype == np.uint8 and img.ndim == 3 else image
+
+
 def stabilises(settings: TrackerSettings, first_homography: np.ndarray | None) -> bool:
     """Whether a run estimates the camera motion itself (and so needs every frame's pixels)."""
     return settings.stabilise == "on" or (settings.stabilise == "auto" and first_homography is None)
@@ -210,12 +217,13 @@ class Tracker:
         h = frame.homography if homography is _SOURCE else homography
         return self.detector.observation(frame, h, self.factor if factor is None else factor)
 
-    def _frame_homography(self, frame: Frame) -> np.ndarray | None:
-        """World -> image homography of ``frame`` (the stabiliser's, when stabilising)."""
+    def _frame_homography(self, frame: Frame, image: np.ndarray | None) -> np.ndarray | None:
+        """World -> image homography of ``frame`` (the stabiliser's on ``image``, the frame's pixels
+        or their grey, when stabilising)."""
         if self.stabiliser is None:
             return frame.homography
         if self.frames == 0:
-            self.stabiliser.start(frame.image)
+            self.stabiliser.start(image)
             return self._first_h  # the first frame's pixels are the world (in target lengths if local)
         prev = self.last_state
         ex, radius = None, 0.0  # exclude the target's last estimate from the background features
@@ -223,14 +231,15 @@ class Tracker:
             ex = (prev.map_estimate.image_x, prev.map_estimate.image_y)
             cfg = self.settings.stabiliser
             radius = max(cfg.min_exclusion_px, cfg.exclusion_lengths * self.scale.target_length_px)
-        acc = self.stabiliser.update(frame.image, ex, radius)
+        acc = self.stabiliser.update(image, ex, radius)
         if self._local:
             # world = the previous frame's pixels in target lengths: seen through the frame-to-frame map
             return self.stabiliser.last.interframe @ self.homography
         return acc
 
     def step(self, frame: Frame) -> TrackState:
-        h = self._frame_homography(frame)
+        pixels = None if self.stabiliser is None else _shared_grey(frame.image)
+        h = self._frame_homography(frame, pixels)
         particles = getattr(self.filter, "particles", None)
         world = self._world_xy
         if self.frames > 0 and world is not None and (h is not None or self.homography is not None):
@@ -254,7 +263,7 @@ class Tracker:
             self.scale.predict(self.homography, h, world if seen else None, frame.time, own)
         self.factor = self.scale.factor()
         if self.motion_cue is not None:
-            self.motion_cue.push(frame.time, frame.image, self.stabiliser.homography)
+            self.motion_cue.push(frame.time, pixels, self.stabiliser.homography)
         det = self._search(frame, h)
         obs = self.observation(frame, h)
         if self.motion_cue is not None:
@@ -352,7 +361,7 @@ class Tracker:
             return None
         t0 = time.perf_counter()
         try:
-            det = r.search(frame.time, lambda k, xy: self.detector.scale_grid(frame, k, xy), self.scale,
+            det = r.search(frame.time, lambda k, xy, crop=None: self.detector.scale_grid(frame, k, xy, crop), self.scale,
                            self.motion_cue)
         except ObservationUnavailable:
             return None  # a remote detector did not answer: search again next frame

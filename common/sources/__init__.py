@@ -13,9 +13,10 @@ Source strings (the ``SOURCE`` argument of the commands):
 - ``people``, ``people:SEED`` or ``people:SEED:PEOPLE``: the synthetic people scene
   (:mod:`common.scene.people`, 3 people unless PEOPLE says otherwise) with per-part ground truth
   (``people_truth(i)``); ``n_frames`` (at least 10) sets the scene's length, as ``track-multi``;
-- ``zoom[:SEED]``, ``exit[:SEED]``: the synthetic event sequences of :mod:`common.scene.events`
-  (a 10x zoom onto the car; the car leaving the frame and coming back elsewhere), tracked with
-  the real-footage profile (no homography).
+- ``zoom[:SEED]``, ``exit[:SEED[:FPS]]``: the synthetic event sequences of :mod:`common.scene.events`
+  (a 10x zoom onto the car; the car leaving the frame and coming back elsewhere, at 10 fps unless
+  FPS says otherwise: the same events in seconds), tracked with the real-footage profile (no
+  homography).
 """
 
 from __future__ import annotations
@@ -307,11 +308,19 @@ def open_source(spec: str, n_frames: int | None = None) -> Source:
         if spec == name or spec.startswith(name + ":"):
             from common.scene.events import ExitSource, ZoomSource
 
+            parts = spec.split(":")[1:]
             try:
-                seed = int(spec.partition(":")[2] or 0)
+                seed = int(parts[0] or 0) if parts else 0
+                fps = float(parts[1]) if len(parts) > 1 and name == "exit" else None
+                if len(parts) > (2 if name == "exit" else 1) or (fps is not None and not 1.0 <= fps <= 240.0):
+                    raise ValueError
             except ValueError:
-                raise SourceError(f"bad source {spec!r}: use {name} or {name}:SEED (an integer)") from None
-            src = ZoomSource(seed=seed) if name == "zoom" else ExitSource(seed=seed)
+                form = "exit, exit:SEED or exit:SEED:FPS (FPS 1-240)" if name == "exit" else "zoom or zoom:SEED"
+                raise SourceError(f"bad source {spec!r}: use {form} (SEED an integer)") from None
+            if name == "zoom":
+                src = ZoomSource(seed=seed)
+            else:
+                src = ExitSource(seed=seed) if fps is None else ExitSource(seed=seed, fps=fps)
             if n_frames is not None:
                 src.n_frames = max(0, min(int(n_frames), src.n_frames))
             return src

@@ -59,7 +59,7 @@ class FrameInfo(_message.Message):
     def __init__(self, index: _Optional[int] = ..., time_s: _Optional[float] = ..., capture_ns: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., homography: _Optional[_Iterable[float]] = ..., truth: _Optional[_Union[Truth, _Mapping]] = ..., source: _Optional[str] = ..., end_of_stream: _Optional[bool] = ..., total_frames: _Optional[int] = ..., truth_people: _Optional[int] = ..., truth_parts: _Optional[bytes] = ...) -> None: ...
 
 class ScoreQuery(_message.Message):
-    __slots__ = ("request_id", "client", "frame_index", "kind", "count", "hypotheses", "template_version", "factor", "one_off", "histogram_json", "reference_count", "bins", "references", "ref_index")
+    __slots__ = ("request_id", "client", "frame_index", "kind", "count", "hypotheses", "template_version", "factor", "one_off", "histogram_json", "reference_count", "bins", "references", "ref_index", "crop")
     class Kind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         AT: _ClassVar[ScoreQuery.Kind]
@@ -88,6 +88,7 @@ class ScoreQuery(_message.Message):
     BINS_FIELD_NUMBER: _ClassVar[int]
     REFERENCES_FIELD_NUMBER: _ClassVar[int]
     REF_INDEX_FIELD_NUMBER: _ClassVar[int]
+    CROP_FIELD_NUMBER: _ClassVar[int]
     request_id: int
     client: str
     frame_index: int
@@ -102,7 +103,8 @@ class ScoreQuery(_message.Message):
     bins: int
     references: bytes
     ref_index: bytes
-    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., kind: _Optional[_Union[ScoreQuery.Kind, str]] = ..., count: _Optional[int] = ..., hypotheses: _Optional[bytes] = ..., template_version: _Optional[int] = ..., factor: _Optional[float] = ..., one_off: _Optional[bool] = ..., histogram_json: _Optional[str] = ..., reference_count: _Optional[int] = ..., bins: _Optional[int] = ..., references: _Optional[bytes] = ..., ref_index: _Optional[bytes] = ...) -> None: ...
+    crop: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, request_id: _Optional[int] = ..., client: _Optional[str] = ..., frame_index: _Optional[int] = ..., kind: _Optional[_Union[ScoreQuery.Kind, str]] = ..., count: _Optional[int] = ..., hypotheses: _Optional[bytes] = ..., template_version: _Optional[int] = ..., factor: _Optional[float] = ..., one_off: _Optional[bool] = ..., histogram_json: _Optional[str] = ..., reference_count: _Optional[int] = ..., bins: _Optional[int] = ..., references: _Optional[bytes] = ..., ref_index: _Optional[bytes] = ..., crop: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class ScoreReply(_message.Message):
     __slots__ = ("request_id", "client", "frame_index", "status", "error", "count", "angles", "scores", "valid", "template", "prepare_ms", "score_ms", "pmatrix", "pmatrix_columns", "dtype", "bins")
