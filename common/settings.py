@@ -23,10 +23,10 @@ ProfileName = Literal["synthetic", "real"]
 class TemplateAdaptation(BaseModel):
     """Template update when the posterior is confident the target is visible (not in the papers).
 
-    The P-matrix sampled at the MAP position on the current frame (at the current matching scale)
-    is rotated back by the refined MAP angle to the template's orientation
-    (:func:`common.detector.template.rotate_pmatrix`), normalised, and blended into an adaptive
-    part ``A <- normalise((1 - rate) A + rate F)``; the template used is
+    The P-matrix sampled on the current frame (at the current matching scale) where the current
+    template matches best near the MAP (``align_lengths``) is rotated back by the refined angle there
+    to the template's orientation (:func:`common.detector.template.rotate_pmatrix`), normalised, and
+    blended into an adaptive part ``A <- normalise((1 - rate) A + rate F)``; the template used is
     ``normalise(anchor * H0 + (1 - anchor) * A)`` with ``H0`` the normalised original: however
     many updates, the original keeps weight ``anchor`` (see :mod:`common.single_target.adaptation`)."""
 
@@ -52,6 +52,13 @@ class TemplateAdaptation(BaseModel):
     position is a search grid's (a quarter of its step), and until the cloud has settled on the peak
     an update would take in a view off the target's centre, which the template then keeps matching
     (the synthetic re-entry: 5 px off for good, when the first update came the frame after it)."""
+    align_lengths: float = Field(0.25, ge=0)
+    """The update is taken where the template being matched registers the target best within this
+    many target lengths of the MAP (a grid a sixteenth of a length apart, then a sixty-fourth about
+    its best), and skipped where that best lies farther (0: at the MAP itself). The posterior's
+    mode lags the target and carries the motion prior's smoothing; a sample taken off the target's
+    centre is kept by the template, which then matches best off the centre too, and the offsets add
+    up update after update (Matthews, Ishikawa and Baker's template-update problem)."""
 
 
 class ScaleSettings(BaseModel):

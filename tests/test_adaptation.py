@@ -148,3 +148,35 @@ def test_no_adaptation_while_a_restart_settles():
     assert held[-1][1] > 0
     free = adaptations(None)
     assert any(n > 0 for t, n in free if t - frames[0].time < hold - 1e-9)
+
+
+def test_the_update_is_registered_where_the_template_matches_best(blobs):
+    """``registered_point``: from a MAP 5 px off the target (a fifth of its length here), the
+    matcher's best point is the target's centre to within the fine grid's half step (3/8 px);
+    on a stand-in score surface, a peak diagonally beyond the reach (half a length away, a reach of
+    a tenth) gives no point (the best found lies past the reach, at the square's corner), the same
+    peak within reach is found, and nothing scorable gives no point."""
+    import math
+
+    from common.single_target.adaptation import registered_point
+
+    img = blobs[0.0]
+    obs = DetectorObservation(0, 0.0, img, PolarMatcher(Template.from_image(img, (128.0, 128.0))), FrameCache(),
+                              None)
+    length = 24.0
+    got = registered_point(obs, (133.0, 125.0), length, 0.25)
+    assert got is not None and math.hypot(got[0] - 128.0, got[1] - 128.0) <= 0.5 * length / 64 + 1e-9
+
+    class Peaked:
+        def __init__(self, at, valid=True):
+            self.at, self.valid = at, valid
+
+        def score_grid(self, xy):
+            d = np.hypot(xy[:, 0] - self.at[0], xy[:, 1] - self.at[1])
+            return np.tile(np.exp(-d / 10.0)[:, None], (1, 48)), np.full(len(xy), self.valid)
+
+    far = (128.0 + 0.5 * length, 128.0 + 0.5 * length)
+    assert registered_point(Peaked(far), (128.0, 128.0), length, 0.1) is None
+    near = registered_point(Peaked(far), (128.0, 128.0), length, 0.75)
+    assert near is not None and math.hypot(near[0] - far[0], near[1] - far[1]) <= 0.5 * length / 64 + 1e-9
+    assert registered_point(Peaked(far, valid=False), (128.0, 128.0), length, 0.75) is None

@@ -18,7 +18,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from common.single_target.adaptation import TemplateAdapter
+from common.single_target.adaptation import TemplateAdapter, registered_point
 from common.detector import Template
 from common.detector.client import DetectorClient, LocalDetector
 from common.detector.layout import SUPPORT_RADIUS_PX
@@ -406,10 +406,16 @@ class Tracker:
             return
         if frame.time - self._restart_time < ad.hold_after_restart_s - 1e-9:
             return  # the cloud has not settled since a re-acquisition's restart
-        # sample at the frame's matching scale, turned back by the refined angle at the MAP
+        # sample at the frame's matching scale, where the template registers the target near the
+        # MAP, turned back by the refined angle there
         obs = self._obs
         x, y = state.map_estimate.image_x, state.map_estimate.image_y
         try:
+            if ad.align_lengths > 0:
+                at = registered_point(obs, (x, y), self.scale.target_length_px, ad.align_lengths)
+                if at is None:
+                    return  # the template's best match lies beyond the MAP's neighbourhood: no update
+                x, y = at
             theta, score = obs.refine_peak(x, y)
             if score < ad.min_score:
                 return
