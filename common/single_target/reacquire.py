@@ -117,10 +117,12 @@ def acceptance_threshold(false_alarms_per_s: float, dt: float, hypotheses: int, 
     return float(beta.isf(min(max(p, 1e-15), 0.5), *background))
 
 
-_REFINE_REACH = 2 * (0.25 + 0.0625)
-"""How far :meth:`Reacquirer._refine`'s two 5x5 stages reach beyond a coarse candidate, in coarse
-grid steps: a coarse query matched on its points' box grown by this much leaves the refinement
-inside the same crop, so the three queries share one preparation."""
+_REFINE_STAGES = (0.25, 0.0625)
+""":meth:`Reacquirer._refine`'s two 5x5 grids, their spacing in coarse grid steps."""
+_REFINE_REACH = 2 * sum(_REFINE_STAGES)
+"""How far the refinement reaches beyond a coarse candidate, in coarse grid steps: a coarse query
+matched on its points' box grown by this much leaves the refinement inside the same crop, so the
+three queries share one preparation."""
 
 
 def _crop_about(xy: np.ndarray, reach: float) -> tuple[float, float, float, float]:
@@ -129,12 +131,16 @@ def _crop_about(xy: np.ndarray, reach: float) -> tuple[float, float, float, floa
             float(xy[:, 0].max() + reach), float(xy[:, 1].max() + reach))
 
 
+_MOVER_GRID_LENGTHS = 0.25
+"""Spacing of the grid about a mover (and of its refinement), in target lengths: the movers' boxes
+are half a box apart, the matcher's peak narrower."""
+
+
 def _mover_crop(x: float, y: float, length: float) -> tuple[float, float, float, float]:
     """The box a mover at (x, y) is matched on at a target length ``length``: the 5x5 grid of
     :meth:`Reacquirer._match_mover` (half a length either way) and the refinement about its best
     point (a quarter-length step: :data:`_REFINE_REACH` of it beyond), so both share one crop."""
-    r = 0.5 * length + _REFINE_REACH * 0.25 * length
-    return (x - r, y - r, x + r, y + r)
+    return _crop_about(np.array([[x, y]]), (2 * _MOVER_GRID_LENGTHS + _REFINE_REACH * _MOVER_GRID_LENGTHS) * length)
 
 
 class Reacquirer:
@@ -366,7 +372,7 @@ class Reacquirer:
                 return None
             self.mover_detections += 1
             # the grid is a quarter of a target length apart, the matcher's peak narrower: refine
-            step = 0.25 * scale_tracker.length_px * det.scale
+            step = _MOVER_GRID_LENGTHS * scale_tracker.length_px * det.scale
             k = quantise_factor(scale_tracker.raw_factor(det.scale), scale_tracker.cfg.steps_per_octave)
             return self._refine(grid_at, k, np.array([[det.x, det.y]]), np.array([det.score]), step, det.scale,
                                 _mover_crop(x, y, scale_tracker.length_px * det.scale))
@@ -388,7 +394,7 @@ class Reacquirer:
         best's scale (near the frame's edge only the grid's inner points may be scorable)."""
         best = Detection(x, y, self.last_theta, float("nan"), float(scales[0]))
         on_mover = False
-        off = np.arange(-2, 3) * 0.25
+        off = np.arange(-2, 3) * _MOVER_GRID_LENGTHS
         gx, gy = np.meshgrid(off, off)
         grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
         grid = grid[np.argsort(np.hypot(grid[:, 0], grid[:, 1]), kind="stable")]  # ties: nearest the mover
@@ -436,7 +442,7 @@ class Reacquirer:
         query's, whose preparation they then share; see :data:`_REFINE_REACH`)."""
         centres = xy[np.argsort(-maxima, kind="stable")[: self.cfg.refine_candidates]]
         best: Detection | None = None
-        for frac in (0.25, 0.0625):
+        for frac in _REFINE_STAGES:
             off = np.arange(-2, 3) * (step * frac)
             gx, gy = np.meshgrid(off, off)
             grid = np.stack([gx.ravel(), gy.ravel()], axis=1)

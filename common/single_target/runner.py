@@ -361,8 +361,8 @@ class Tracker:
             return None
         t0 = time.perf_counter()
         try:
-            det = r.search(frame.time, lambda k, xy, crop=None: self.detector.scale_grid(frame, k, xy, crop), self.scale,
-                           self.motion_cue)
+            det = r.search(frame.time, lambda k, xy, crop=None: self.detector.scale_grid(frame, k, xy, crop),
+                           self.scale, self.motion_cue)
         except ObservationUnavailable:
             return None  # a remote detector did not answer: search again next frame
         finally:
