@@ -1,0 +1,163 @@
+"""Two ideas probed on real footage in stop 31 and not kept: a colour cue, and wider footprints.
+
+A diagnostic for docs/real-footage.md ("Probed in stop 31"). It runs the in-process tracker (the
+real-footage profile) on one UAV123/OTB sequence for the given seeds and prints precision@20 over
+the run and per hundred frames, with one of two variants patched in (neither is in the product):
+
+- ``--colour-cue ZCAP``: a colour cue added to the moving-target cue. The target's colour
+  histogram (16 bins a channel) from the ellipse inscribed in the first box, the background's from
+  the whole current frame (a quarter size); each pixel's p(target | colour) = h_f / (h_f + h_b); the
+  mean of p over target-sized boxes scored against the region's boxes as the motion cue scores its
+  energy (robust z, spread floored at 0.05 and a quarter of the median), log ratio
+  -log(2 P(N(0,1) >= clip(z, 0, ZCAP))).
+- ``--footprint-frames W``: a hypothesis stays scorable while the footprint is up to W frames
+  wide (the product: 1, no wider than the frame's short side: the matcher cannot score a target
+  longer than 719 * 48 / 128 = 270 px in a 720-px-high frame).
+
+    uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4
+    uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4 --colour-cue 5
+    uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4 --footprint-frames 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.stats import norm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import common.detector.resample as resample  # noqa: E402
+from common.settings import profile_for  # noqa: E402
+from common.single_target import runner  # noqa: E402
+from common.single_target.motion_cue import _RELATIVE_FLOOR, MotionCue  # noqa: E402
+from common.sources import open_source  # noqa: E402
+from common.tracking.observation import CuedObservation  # noqa: E402
+
+BINS = 16
+FLOOR = 0.05
+
+
+def _bin_index(rgb: np.ndarray) -> np.ndarray:
+    q = (rgb >> (8 - int(math.log2(BINS)))).astype(np.int32)
+    return (q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]
+
+
+class ColourCue(MotionCue):
+    """The colour cue (module docstring), on the motion cue's box statistics."""
+
+    def __init__(self, cfg, box_size, image0: np.ndarray, centre, z_cap: float):
+        super().__init__(cfg, box_size)
+        self.z_cap = z_cap
+        mask = np.zeros(image0.shape[:2], np.uint8)
+        axes = (max(1, int(box_size[0] / 2)), max(1, int(box_size[1] / 2)))
+        cv2.ellipse(mask, (int(round(centre[0])), int(round(centre[1]))), axes, 0, 0, 360, 255, -1)
+        self.h_target = np.bincount(_bin_index(image0)[mask > 0], minlength=BINS**3).astype(float)
+        self.h_target /= max(self.h_target.sum(), 1.0)
+
+    def prepare_colour(self, image: np.ndarray, centre, scale: float) -> None:
+        cfg = self.cfg
+        self._integral, self._stats, self._scale = None, None, float(scale)
+        small = cv2.resize(image, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+        h_bg = np.bincount(_bin_index(small).ravel(), minlength=BINS**3).astype(float)
+        h_bg /= h_bg.sum()
+        eps = 1e-3 / BINS**3
+        table = ((self.h_target + eps) / (self.h_target + h_bg + 2 * eps)).astype(np.float32)
+        length = max(self.box_size) * self._scale
+        r = cfg.region_lengths * length + 2 * length
+        height, width = image.shape[:2]
+        x0, y0 = max(0, int(centre[0] - r)), max(0, int(centre[1] - r))
+        x1, y1 = min(width, int(math.ceil(centre[0] + r))), min(height, int(math.ceil(centre[1] + r)))
+        level = max(0, int(math.ceil(math.log2(max(length / cfg.analysis_length_px, 1.0)) - 1e-9)))
+        f = 0.5**level
+        out_w, out_h = int((x1 - x0) * f), int((y1 - y0) * f)
+        if out_w < 8 or out_h < 8:
+            return
+        crop = np.ascontiguousarray(image[y0:y1, x0:x1])
+        if level:
+            crop = cv2.resize(crop, (out_w, out_h), interpolation=cv2.INTER_AREA)
+        self._integral = cv2.integral(table[_bin_index(crop)], sdepth=cv2.CV_64F)
+        self._origin, self._factor = (float(x0), float(y0)), f
+        bw, bh = self._box()
+        step = max(bw, bh) / 2
+        gx, gy = np.meshgrid(np.arange(x0 + bw / 2, x1 - bw / 2 + 1e-9, step),
+                             np.arange(y0 + bh / 2, y1 - bh / 2 + 1e-9, step))
+        e = self._box_means(np.stack([gx.ravel(), gy.ravel()], axis=1))
+        e = e[np.isfinite(e)]
+        if len(e) < cfg.min_boxes:
+            self._integral = None
+            return
+        med = float(np.median(e))
+        self._stats = (med, max(1.4826 * float(np.median(np.abs(e - med))), _RELATIVE_FLOOR * med, FLOOR))
+
+    def log_ratio(self, image_xy: np.ndarray) -> np.ndarray:
+        z = np.clip(self.z_scores(image_xy), 0.0, self.z_cap)
+        return -(norm.logsf(z) + math.log(2.0))
+
+
+def patch_colour_cue(z_cap: float) -> None:
+    start, with_motion_cue = runner.Tracker.start.__func__, runner.Tracker._with_motion_cue
+
+    def patched_start(cls, frame, box, settings, *args, **kwargs):
+        tracker = start(cls, frame, box, settings, *args, **kwargs)
+        x, y, w, h = box
+        tracker.colour_cue = ColourCue(settings.motion_cue, (float(w), float(h)), np.asarray(frame.image),
+                                       (x + w / 2, y + h / 2), z_cap)
+        return tracker
+
+    def patched_with_motion_cue(self, frame, obs, det):
+        cued = with_motion_cue(self, frame, obs, det)
+        if det is not None:
+            centre = (det.x, det.y)
+        elif self.last_state is not None:
+            centre = (self.last_state.map_estimate.image_x, self.last_state.map_estimate.image_y)
+        else:
+            centre = self.template.centre
+        self.colour_cue.prepare_colour(np.asarray(frame.image), centre, self.scale.s)
+        motion, colour = self.motion_cue.log_ratio, self.colour_cue.log_ratio
+        return CuedObservation(cued.base, lambda xy: motion(xy) + colour(xy))
+
+    runner.Tracker.start = classmethod(patched_start)
+    runner.Tracker._with_motion_cue = patched_with_motion_cue
+
+
+def patch_footprint(frames_wide: float) -> None:
+    def footprint_valid(xy, k, size):
+        if 2 * resample.SUPPORT_RADIUS_PX / k > frames_wide * min(size) - 1:
+            return np.zeros(len(xy), bool)
+        return resample._inside_by(xy, resample.EDGE_SUPPORT_PX / k, size)
+
+    resample.footprint_valid = footprint_valid
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("sequence")
+    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--colour-cue", type=float, metavar="ZCAP")
+    ap.add_argument("--footprint-frames", type=float, metavar="W")
+    a = ap.parse_args()
+    if a.colour_cue is not None:
+        patch_colour_cue(a.colour_cue)
+    if a.footprint_frames is not None:
+        patch_footprint(a.footprint_frames)
+    src = open_source(a.sequence)
+    frames = list(src)
+    for seed in (int(s) for s in a.seeds.split(",")):
+        tracker = runner.Tracker.start(frames[0], src.truth[0], profile_for(src, seed=seed))
+        err = []
+        for frame, (x, y, w, h) in zip(frames, src.truth):
+            m = tracker.step(frame).map_estimate
+            err.append(math.hypot(m.image_x - (x + w / 2), m.image_y - (y + h / 2)))
+        hit = np.asarray(err) <= 20
+        per100 = [round(float(hit[i:i + 100].mean()), 2) for i in range(0, len(hit), 100)]
+        print(f"{Path(a.sequence).name} seed {seed} p20 {hit.mean():.3f} per 100 frames {per100}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
