@@ -6,7 +6,8 @@ the run and per hundred frames, with one of two variants patched in (neither is 
 
 - ``--colour-cue ZCAP``: a colour cue added to the moving-target cue. The target's colour
   histogram (16 bins a channel) from the ellipse inscribed in the first box, the background's from
-  the whole current frame (a quarter size); each pixel's p(target | colour) = h_f / (h_f + h_b); the
+  the whole current frame (a quarter size; ``--colour-background local``: the cue's region less a
+  disc of 1.5 target lengths about the estimate, averaged over a second); each pixel's p(target | colour) = h_f / (h_f + h_b); the
   mean of p over target-sized boxes scored against the region's boxes as the motion cue scores its
   energy (robust z, spread floored at 0.05 and a quarter of the median), log ratio
   -log(2 P(N(0,1) >= clip(z, 0, ZCAP))).
@@ -51,23 +52,21 @@ def _bin_index(rgb: np.ndarray) -> np.ndarray:
 class ColourCue(MotionCue):
     """The colour cue (module docstring), on the motion cue's box statistics."""
 
-    def __init__(self, cfg, box_size, image0: np.ndarray, centre, z_cap: float):
+    def __init__(self, cfg, box_size, image0: np.ndarray, centre, z_cap: float, local: bool = False):
         super().__init__(cfg, box_size)
         self.z_cap = z_cap
+        self.local = local
+        self.h_local: np.ndarray | None = None
+        self.time: float | None = None
         mask = np.zeros(image0.shape[:2], np.uint8)
         axes = (max(1, int(box_size[0] / 2)), max(1, int(box_size[1] / 2)))
         cv2.ellipse(mask, (int(round(centre[0])), int(round(centre[1]))), axes, 0, 0, 360, 255, -1)
         self.h_target = np.bincount(_bin_index(image0)[mask > 0], minlength=BINS**3).astype(float)
         self.h_target /= max(self.h_target.sum(), 1.0)
 
-    def prepare_colour(self, image: np.ndarray, centre, scale: float) -> None:
+    def prepare_colour(self, image: np.ndarray, centre, scale: float, time: float) -> None:
         cfg = self.cfg
         self._integral, self._stats, self._scale = None, None, float(scale)
-        small = cv2.resize(image, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
-        h_bg = np.bincount(_bin_index(small).ravel(), minlength=BINS**3).astype(float)
-        h_bg /= h_bg.sum()
-        eps = 1e-3 / BINS**3
-        table = ((self.h_target + eps) / (self.h_target + h_bg + 2 * eps)).astype(np.float32)
         length = max(self.box_size) * self._scale
         r = cfg.region_lengths * length + 2 * length
         height, width = image.shape[:2]
@@ -81,6 +80,22 @@ class ColourCue(MotionCue):
         crop = np.ascontiguousarray(image[y0:y1, x0:x1])
         if level:
             crop = cv2.resize(crop, (out_w, out_h), interpolation=cv2.INTER_AREA)
+        if self.local:
+            # the region less a disc of 1.5 lengths about the estimate, averaged over a second
+            yy, xx = np.mgrid[0:out_h, 0:out_w]
+            away = np.hypot(xx / f + x0 - centre[0], yy / f + y0 - centre[1]) > 1.5 * length
+            h_now = np.bincount(_bin_index(crop)[away], minlength=BINS**3).astype(float)
+            h_now /= max(h_now.sum(), 1.0)
+            a = 1.0 if self.h_local is None else min(1.0, (time - self.time) / 1.0)
+            self.h_local = h_now if self.h_local is None else (1 - a) * self.h_local + a * h_now
+            self.time = time
+            h_bg = self.h_local
+        else:
+            small = cv2.resize(image, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+            h_bg = np.bincount(_bin_index(small).ravel(), minlength=BINS**3).astype(float)
+            h_bg /= h_bg.sum()
+        eps = 1e-3 / BINS**3
+        table = ((self.h_target + eps) / (self.h_target + h_bg + 2 * eps)).astype(np.float32)
         self._integral = cv2.integral(table[_bin_index(crop)], sdepth=cv2.CV_64F)
         self._origin, self._factor = (float(x0), float(y0)), f
         bw, bh = self._box()
@@ -100,14 +115,14 @@ class ColourCue(MotionCue):
         return -(norm.logsf(z) + math.log(2.0))
 
 
-def patch_colour_cue(z_cap: float) -> None:
+def patch_colour_cue(z_cap: float, local: bool) -> None:
     start, with_motion_cue = runner.Tracker.start.__func__, runner.Tracker._with_motion_cue
 
     def patched_start(cls, frame, box, settings, *args, **kwargs):
         tracker = start(cls, frame, box, settings, *args, **kwargs)
         x, y, w, h = box
         tracker.colour_cue = ColourCue(settings.motion_cue, (float(w), float(h)), np.asarray(frame.image),
-                                       (x + w / 2, y + h / 2), z_cap)
+                                       (x + w / 2, y + h / 2), z_cap, local)
         return tracker
 
     def patched_with_motion_cue(self, frame, obs, det):
@@ -118,7 +133,7 @@ def patch_colour_cue(z_cap: float) -> None:
             centre = (self.last_state.map_estimate.image_x, self.last_state.map_estimate.image_y)
         else:
             centre = self.template.centre
-        self.colour_cue.prepare_colour(np.asarray(frame.image), centre, self.scale.s)
+        self.colour_cue.prepare_colour(np.asarray(frame.image), centre, self.scale.s, frame.time)
         motion, colour = self.motion_cue.log_ratio, self.colour_cue.log_ratio
         return CuedObservation(cued.base, lambda xy: motion(xy) + colour(xy))
 
@@ -140,10 +155,11 @@ def main() -> None:
     ap.add_argument("sequence")
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--colour-cue", type=float, metavar="ZCAP")
+    ap.add_argument("--colour-background", choices=("frame", "local"), default="frame")
     ap.add_argument("--footprint-frames", type=float, metavar="W")
     a = ap.parse_args()
     if a.colour_cue is not None:
-        patch_colour_cue(a.colour_cue)
+        patch_colour_cue(a.colour_cue, a.colour_background == "local")
     if a.footprint_frames is not None:
         patch_footprint(a.footprint_frames)
     src = open_source(a.sequence)
