@@ -14,6 +14,8 @@ the run and per hundred frames, with one of two variants patched in (neither is 
 - ``--footprint-frames W``: a hypothesis stays scorable while the footprint is up to W frames
   wide (the product: 1, no wider than the frame's short side: the matcher cannot score a target
   longer than 719 * 48 / 128 = 270 px in a 720-px-high frame).
+- ``--oracle-restart FRAME``: not a variant but a bound: the filter restarted at the ground truth
+  (centre and scale) on that frame, as a re-acquisition would; what bridging a loss before it is worth.
 
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4 --colour-cue 5
@@ -37,6 +39,7 @@ import common.detector.resample as resample  # noqa: E402
 from common.settings import profile_for  # noqa: E402
 from common.single_target import runner  # noqa: E402
 from common.single_target.motion_cue import _RELATIVE_FLOOR, MotionCue  # noqa: E402
+from common.single_target.reacquire import Detection  # noqa: E402
 from common.sources import open_source  # noqa: E402
 from common.tracking.observation import CuedObservation  # noqa: E402
 
@@ -150,6 +153,32 @@ def patch_footprint(frames_wide: float) -> None:
     resample.footprint_valid = footprint_valid
 
 
+def patch_oracle_restart(frame_index: int, truth) -> None:
+    """Restart the filter at the ground truth on ``frame_index`` (centre and scale; the angle the
+    MAP's): what bridging a loss before that frame would be worth."""
+    search = runner.Tracker._search
+    first = max(truth[0][2], truth[0][3])
+
+    def patched_search(self, frame, h):
+        if frame.index != frame_index:
+            return search(self, frame, h)
+        x, y, w, hh = truth[frame_index]
+        theta = 0.0 if self.last_state is None else self.last_state.map_estimate.theta
+        det = Detection(x=x + w / 2, y=y + hh / 2, theta_deg=theta, score=1.0, scale=max(w, hh) / first)
+        self.scale.restart(det.scale)
+        self.factor = self.scale.factor()
+        length_world = runner.length_in_world(self.scale.target_length_px, (det.x, det.y), h)
+        initial = runner.InitialState.from_image_point(
+            (det.x, det.y), h, time=None, theta=det.theta_deg, p_visible=1.0,
+            pos_std=self.settings.reacquisition.grid_lengths * length_world / 4,
+            vel_std=runner.initial_vel_std(self.settings, length_world), theta_std=3.75)
+        self.filter.restart(initial)
+        self._restart_time = frame.time
+        return det
+
+    runner.Tracker._search = patched_search
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sequence")
@@ -157,6 +186,7 @@ def main() -> None:
     ap.add_argument("--colour-cue", type=float, metavar="ZCAP")
     ap.add_argument("--colour-background", choices=("frame", "local"), default="frame")
     ap.add_argument("--footprint-frames", type=float, metavar="W")
+    ap.add_argument("--oracle-restart", type=int, metavar="FRAME")
     a = ap.parse_args()
     if a.colour_cue is not None:
         patch_colour_cue(a.colour_cue, a.colour_background == "local")
@@ -164,6 +194,8 @@ def main() -> None:
         patch_footprint(a.footprint_frames)
     src = open_source(a.sequence)
     frames = list(src)
+    if a.oracle_restart is not None:
+        patch_oracle_restart(a.oracle_restart, src.truth)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], profile_for(src, seed=seed))
         err = []
