@@ -16,6 +16,8 @@ the run and per hundred frames, with one of two variants patched in (neither is 
   longer than 719 * 48 / 128 = 270 px in a 720-px-high frame).
 - ``--oracle-restart FRAME``: not a variant but a bound: the filter restarted at the ground truth
   (centre and scale) on that frame, as a re-acquisition would; what bridging a loss before it is worth.
+  With ``--oracle-template-from F``, the template is also put back to the one the track had after
+  frame F: what a memory of the views it held would be worth.
 
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4 --colour-cue 5
@@ -153,11 +155,18 @@ def patch_footprint(frames_wide: float) -> None:
     resample.footprint_valid = footprint_valid
 
 
-def patch_oracle_restart(frame_index: int, truth) -> None:
+def patch_oracle_restart(frame_index: int, truth, template_from: int | None = None) -> None:
     """Restart the filter at the ground truth on ``frame_index`` (centre and scale; the angle the
-    MAP's): what bridging a loss before that frame would be worth."""
-    search = runner.Tracker._search
+    MAP's): what bridging a loss before that frame would be worth; with ``template_from``, also
+    match from then on with the template (and adaptive part) the track had after that frame."""
+    search, step = runner.Tracker._search, runner.Tracker.step
     first = max(truth[0][2], truth[0][3])
+
+    def patched_step(self, frame):
+        state = step(self, frame)
+        if template_from is not None and frame.index == template_from:
+            self._snapshot = (self.template, self.adapter._a.copy())
+        return state
 
     def patched_search(self, frame, h):
         if frame.index != frame_index:
@@ -174,9 +183,14 @@ def patch_oracle_restart(frame_index: int, truth) -> None:
             vel_std=runner.initial_vel_std(self.settings, length_world), theta_std=3.75)
         self.filter.restart(initial)
         self._restart_time = frame.time
+        if template_from is not None:
+            self.template, a = self._snapshot
+            self.adapter._a = a.copy()
+            self.detector.use_template(self.template)
         return det
 
     runner.Tracker._search = patched_search
+    runner.Tracker.step = patched_step
 
 
 def main() -> None:
@@ -187,6 +201,7 @@ def main() -> None:
     ap.add_argument("--colour-background", choices=("frame", "local"), default="frame")
     ap.add_argument("--footprint-frames", type=float, metavar="W")
     ap.add_argument("--oracle-restart", type=int, metavar="FRAME")
+    ap.add_argument("--oracle-template-from", type=int, metavar="FRAME")
     a = ap.parse_args()
     if a.colour_cue is not None:
         patch_colour_cue(a.colour_cue, a.colour_background == "local")
@@ -195,7 +210,7 @@ def main() -> None:
     src = open_source(a.sequence)
     frames = list(src)
     if a.oracle_restart is not None:
-        patch_oracle_restart(a.oracle_restart, src.truth)
+        patch_oracle_restart(a.oracle_restart, src.truth, a.oracle_template_from)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], profile_for(src, seed=seed))
         err = []
