@@ -144,6 +144,33 @@ def test_benchmark_over_seeds(sequence, tmp_path, capsys):
     assert exc.value.code == 2 and "--seeds" in capsys.readouterr().err
 
 
+def _without_fps(value):
+    if isinstance(value, dict):
+        return {k: _without_fps(v) for k, v in value.items() if k not in ("fps", "jobs", "plots", "ms_per_searched_frame")}
+    if isinstance(value, list):
+        return [_without_fps(v) for v in value]
+    return value
+
+
+def test_benchmark_jobs_give_the_figures_of_one_at_a_time(sequence, tmp_path, capsys):
+    """--jobs 2: two sequences x two seeds run in two worker processes give exactly the figures (and
+    per-seed figures, in seed order) of the runs made one at a time; only the timings and the jobs differ.
+    The seeds' runs differ from each other, so a mixed-up order would show."""
+    base = ["benchmark", str(sequence), str(sequence), "--json", "--frames", "8", "--no-progress",
+            "--set", "rbpf.n_particles=20", "--seed", "4", "--seeds", "2"]
+    assert main([*base, "--out", str(tmp_path / "a")]) == 0
+    one = json.loads(capsys.readouterr().out)
+    assert main([*base, "--out", str(tmp_path / "b"), "--jobs", "2"]) == 0
+    two = json.loads(capsys.readouterr().out)
+    assert (one["jobs"], two["jobs"]) == (1, 2)
+    seeds = two["sequences"][0]["trackers"]["polartrack"]["seeds"]
+    assert [r["seed"] for r in seeds] == [4, 5] and seeds[0]["mean_err"] != seeds[1]["mean_err"]
+    assert _without_fps(two) == _without_fps(one)
+    with pytest.raises(SystemExit) as exc:
+        main([*base, "--jobs", "0"])
+    assert exc.value.code == 2 and "--jobs" in capsys.readouterr().err
+
+
 def test_benchmark_table(sequence, tmp_path, capsys):
     """Two sequences (the same folder twice): a row per sequence and tracker, and the mean."""
     assert main(["benchmark", str(sequence), str(sequence), "--out", str(tmp_path), "--frames", "3", "--no-progress"]) == 0
@@ -162,6 +189,18 @@ def test_mismatched_groundtruth(tmp_path, capsys):
     bad = write_sequence(tmp_path / "bad", n=3, extra_lines=1)
     err = one_line_error(capsys, ["benchmark", str(bad), "--out", str(tmp_path / "o"), "--no-progress"])
     assert "4 boxes" in err and "3 frames" in err
+
+
+def test_a_first_box_the_tracker_refuses_is_the_same_one_line_error_with_jobs(tmp_path, capsys):
+    """A first box too near the frame's edge for the matcher: refused by the tracker when it starts,
+    in this process (--jobs 1) or in a worker (--jobs 2), with the same one-line error."""
+    folder = write_sequence(tmp_path / "edgeseq", n=4)
+    lines = (folder / "groundtruth_rect.txt").read_text().splitlines()
+    (folder / "groundtruth_rect.txt").write_text("\n".join(["1,1,5,5", *lines[1:]]) + "\n")
+    argv = ["benchmark", str(folder), "--json", "--no-progress", "--out", str(tmp_path / "out")]
+    err = one_line_error(capsys, argv)
+    assert "edgeseq" in err and "inside" in err
+    assert one_line_error(capsys, [*argv, "--jobs", "2", "--seeds", "2"]) == err
 
 
 def test_not_a_sequence(tmp_path, capsys):

@@ -15,7 +15,11 @@ not overlap the target, IoU = 0) and fps (frames over the time in the tracker's 
 reading the images not included); the mean weighs every sequence the same. A peer's
 ``failures`` counts the frames where OpenCV reported failure (it keeps its last box there). Writes under --out
 precision.png and success.png (one curve per tracker, AUC in the legend), errors-SEQ.png per
-sequence (centre error per frame) and benchmark.json (what --json prints).
+sequence (centre error per frame) and benchmark.json (what --json prints). ``--jobs N`` makes N of
+PolarTrack's runs (sequences x seeds) at once, each in a spawned worker process that opens its
+sequence again: every run is a function of its sequence, settings and seed alone, so the boxes and
+figures are those of one run at a time (tested); only the timings (fps, the re-acquisition's ms per
+searched frame), measured while N run, are not.
 """
 
 from __future__ import annotations
@@ -68,6 +72,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "mean over them, with every seed's figures under 'seeds' (the plots: the first seed)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                    help="override a tracker setting by its dotted name (repeatable), as on track and eval")
+    p.add_argument("--jobs", type=positive_int, default=1, metavar="N",
+                   help="PolarTrack's runs (sequences x seeds) N at a time, each in its own process: the same "
+                        "boxes and figures as one at a time, but fps measured while N run (use 1 to time it)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
 
 
@@ -129,6 +136,68 @@ def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float, dict
     return np.asarray(boxes, float), elapsed, stats
 
 
+class _NoBar:
+    def update(self, n: int) -> None:
+        pass
+
+
+def _run_in_worker(spec: str, n_frames: int | None, init, settings) -> tuple[np.ndarray, float, dict | None]:
+    """One PolarTrack run in a worker process of ``--jobs``: the sequence opened there again."""
+    from common.sources import open_source
+
+    return run_polartrack(open_source(spec, n_frames=n_frames), init, settings, _NoBar())
+
+
+def run_all_polartrack(sequences, args, quiet: bool) -> list[list[tuple[np.ndarray, float, dict | None]]]:
+    """PolarTrack's runs, per sequence a list over the seeds: one at a time in this process
+    (``--jobs 1``), or ``--jobs`` at a time in worker processes (spawned: nothing of this
+    process's state is shared), collected in the same order."""
+    from concurrent.futures import ProcessPoolExecutor
+    import multiprocessing
+
+    from tqdm import tqdm
+
+    from common.single_target.runner import InitError
+    from common.sources import SourceError
+    from services.commands.errors import UsageError
+
+    seeds = range(args.seed, args.seed + args.seeds)
+    out: list[list] = []
+    if args.jobs == 1:
+        for spec, source, init, settings in tqdm(sequences, unit="seq", desc="benchmark", disable=quiet,
+                                                 file=sys.stderr):
+            with tqdm(total=len(source) * args.seeds, unit="frame", desc=f"{source.name} polartrack",
+                      disable=quiet, file=sys.stderr, leave=False) as bar:
+                try:
+                    out.append([run_polartrack(source, init, settings.model_copy(update={"seed": seed}), bar)
+                                for seed in seeds])
+                except (InitError, SourceError) as exc:
+                    raise UsageError(f"{spec}: {exc}") from None
+        return out
+    total = sum(len(source) for _, source, _, _ in sequences) * args.seeds
+    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool, \
+            tqdm(total=total, unit="frame", desc=f"benchmark polartrack, {args.jobs} jobs", disable=quiet,
+                 file=sys.stderr) as bar:
+        futures = [[pool.submit(_run_in_worker, spec, args.frames, init, settings.model_copy(update={"seed": seed}))
+                    for seed in seeds] for spec, _, init, settings in sequences]
+        try:
+            for (spec, source, _, _), row in zip(sequences, futures):
+                results = []
+                for future in row:
+                    try:
+                        results.append(future.result())
+                    except (InitError, SourceError) as exc:
+                        raise UsageError(f"{spec}: {exc}") from None
+                    bar.update(len(source))
+                out.append(results)
+        except BaseException:
+            for row in futures:
+                for future in row:
+                    future.cancel()
+            raise
+    return out
+
+
 def run_peers(prefix: list[str], spec: str, init, args, n_frames: int, bar) -> dict:
     """The peers' output (tools/opencv_baselines.py's JSON) on one sequence, ``bar`` following its
     'progress N' lines."""
@@ -164,10 +233,6 @@ def run(args: argparse.Namespace) -> int:
 
     from common.evaluation.benchmark import as_boxes, mean_scores, score_boxes
     from common.evaluation.plots import plot_curves, plot_errors_over_time
-    from services.commands.errors import UsageError
-    from common.single_target.runner import InitError
-    from common.sources import SourceError
-
     sequences = open_sequences(args)
     prefix = peer_command(args) if args.peers else None
     out_dir = Path(args.out)
@@ -175,16 +240,9 @@ def run(args: argparse.Namespace) -> int:
     trackers = ["polartrack", *(PEERS if args.peers else ())]
     rows, curves, plots, opencv = [], {"precision": {}, "success": {}}, {}, None
     quiet = args.no_progress
-    for spec, source, init, settings in tqdm(sequences, unit="seq", desc="benchmark", disable=quiet, file=sys.stderr):
+    all_seeded = run_all_polartrack(sequences, args, quiet)  # per sequence: (boxes, elapsed, re-acquisition) per seed
+    for (spec, source, init, settings), seeded in zip(sequences, all_seeded):
         truth = as_boxes(source.truth)
-        seeded = []  # (boxes, elapsed, re-acquisition statistics) per seed
-        with tqdm(total=len(source) * args.seeds, unit="frame", desc=f"{source.name} polartrack", disable=quiet,
-                  file=sys.stderr, leave=False) as bar:
-            for seed in range(args.seed, args.seed + args.seeds):
-                try:
-                    seeded.append(run_polartrack(source, init, settings.model_copy(update={"seed": seed}), bar))
-                except (InitError, SourceError) as exc:
-                    raise UsageError(f"{spec}: {exc}") from None
         boxes, elapsed, reacq = seeded[0]
         runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 else float("nan"))}
         failures = {}  # a peer's frames where OpenCV reported failure (it kept its last box there)
@@ -226,7 +284,7 @@ def run(args: argparse.Namespace) -> int:
     title = f"{len(rows)} sequence{'s' if len(rows) != 1 else ''}"
     for kind in ("precision", "success"):
         plot_curves(curves[kind], kind, out_dir / f"{kind}.png", f"{kind} plot, {title}")
-    summary = {"trackers": trackers, "sequences": rows, "mean": mean,
+    summary = {"trackers": trackers, "jobs": args.jobs, "sequences": rows, "mean": mean,
                "plots": {"precision": str(out_dir / "precision.png"), "success": str(out_dir / "success.png"),
                          "errors": plots},
                "definitions": {"scored_frames": "frames whose ground truth is a box (NaN rows left out)",
@@ -234,6 +292,8 @@ def run(args: argparse.Namespace) -> int:
                                               "scored frames with IoU above the threshold (OTB)",
                                "frames_lost": "scored frames whose box does not overlap the truth (IoU = 0)",
                                "mean": "mean over sequences, each weighing the same",
+                               "jobs": "PolarTrack's runs made at once (--jobs); its timings (fps, ms per "
+                                       "searched frame) were measured while that many ran",
                                "seeds": "with --seeds N, PolarTrack's figures per sequence are the mean "
                                         "over its N seeds (each seed's under 'seeds'); the plots show the "
                                         "first seed"}}
