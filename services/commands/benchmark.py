@@ -137,6 +137,8 @@ def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float, dict
 
 
 class _NoBar:
+    """A progress bar that shows nothing (a worker's runs are counted by the parent's bar)."""
+
     def update(self, n: int) -> None:
         pass
 
@@ -233,6 +235,7 @@ def run(args: argparse.Namespace) -> int:
 
     from common.evaluation.benchmark import as_boxes, mean_scores, score_boxes
     from common.evaluation.plots import plot_curves, plot_errors_over_time
+
     sequences = open_sequences(args)
     prefix = peer_command(args) if args.peers else None
     out_dir = Path(args.out)
