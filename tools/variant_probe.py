@@ -14,6 +14,9 @@ the run and per hundred frames, with one of two variants patched in (neither is 
 - ``--footprint-frames W``: a hypothesis stays scorable while the footprint is up to W frames
   wide (the product: 1, no wider than the frame's short side: the matcher cannot score a target
   longer than 719 * 48 / 128 = 270 px in a 720-px-high frame).
+- ``--cue-relative-cap``: the motion cue's cap slid to the region's strongest box (a box's z less
+  the region's best z less the cap), so that near a strongly moving target the boxes beside it get
+  less than the box on it (the product caps both).
 - ``--oracle-restart FRAME``: not a variant but a bound: the filter restarted at the ground truth
   (centre and scale) on that frame, as a re-acquisition would; what bridging a loss before it is worth.
   With ``--oracle-template-from F``, the template is also put back to the one the track had after
@@ -193,6 +196,19 @@ def patch_oracle_restart(frame_index: int, truth, template_from: int | None = No
     runner.Tracker.step = patched_step
 
 
+def patch_cue_relative_cap() -> None:
+    """The motion cue's cap slid to the region's strongest box: a box's z less (the region's best z
+    less the cap), so the best box gets the cap and a box beside it less, where both now saturate."""
+    def log_ratio(self, image_xy):
+        z = self.z_scores(image_xy)
+        if self._integral is not None and len(self._grid):
+            z = z - max(0.0, float(np.max(self.z_scores(self._grid))) - self.cfg.z_cap)
+        z = np.clip(z, 0.0, self.cfg.z_cap)
+        return -(norm.logsf(z) + math.log(2.0))
+
+    MotionCue.log_ratio = log_ratio
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sequence")
@@ -200,11 +216,14 @@ def main() -> None:
     ap.add_argument("--colour-cue", type=float, metavar="ZCAP")
     ap.add_argument("--colour-background", choices=("frame", "local"), default="frame")
     ap.add_argument("--footprint-frames", type=float, metavar="W")
+    ap.add_argument("--cue-relative-cap", action="store_true")
     ap.add_argument("--oracle-restart", type=int, metavar="FRAME")
     ap.add_argument("--oracle-template-from", type=int, metavar="FRAME")
     a = ap.parse_args()
     if a.colour_cue is not None:
         patch_colour_cue(a.colour_cue, a.colour_background == "local")
+    if a.cue_relative_cap:
+        patch_cue_relative_cap()
     if a.footprint_frames is not None:
         patch_footprint(a.footprint_frames)
     src = open_source(a.sequence)
