@@ -177,15 +177,7 @@ def patch_oracle_restart(frame_index: int, truth, template_from: int | None = No
         x, y, w, hh = truth[frame_index]
         theta = 0.0 if self.last_state is None else self.last_state.map_estimate.theta
         det = Detection(x=x + w / 2, y=y + hh / 2, theta_deg=theta, score=1.0, scale=max(w, hh) / first)
-        self.scale.restart(det.scale)
-        self.factor = self.scale.factor()
-        length_world = runner.length_in_world(self.scale.target_length_px, (det.x, det.y), h)
-        initial = runner.InitialState.from_image_point(
-            (det.x, det.y), h, time=None, theta=det.theta_deg, p_visible=1.0,
-            pos_std=self.settings.reacquisition.grid_lengths * length_world / 4,
-            vel_std=runner.initial_vel_std(self.settings, length_world), theta_std=3.75)
-        self.filter.restart(initial)
-        self._restart_time = frame.time
+        self._restart_on(det, frame.time, h)
         if template_from is not None:
             self.template, a = self._snapshot
             self.adapter._a = a.copy()

@@ -367,8 +367,12 @@ class Tracker:
             return None  # a remote detector did not answer: search again next frame
         finally:
             r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
-        if det is None:
-            return None
+        if det is not None:
+            self._restart_on(det, frame.time, h)
+        return det
+
+    def _restart_on(self, det: Detection, time: float, h: np.ndarray | None) -> None:
+        """Restart the scale and the filter on ``det`` (image pixels, scale and angle) at ``time``."""
         self.scale.restart(det.scale)
         self.factor = self.scale.factor()
         length_world = length_in_world(self.scale.target_length_px, (det.x, det.y), h)
@@ -377,8 +381,7 @@ class Tracker:
             pos_std=self.settings.reacquisition.grid_lengths * length_world / 4,
             vel_std=initial_vel_std(self.settings, length_world), theta_std=3.75)
         self.filter.restart(initial)
-        self._restart_time = frame.time
-        return det
+        self._restart_time = time
 
     def _reanchor(self, m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
         """Move the particles to a new world frame: positions through ``m`` (old world -> new

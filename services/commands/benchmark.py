@@ -193,9 +193,7 @@ def run_all_polartrack(sequences, args, quiet: bool) -> list[list[tuple[np.ndarr
                     bar.update(len(source))
                 out.append(results)
         except BaseException:
-            for row in futures:
-                for future in row:
-                    future.cancel()
+            pool.shutdown(cancel_futures=True)  # the runs not started yet are not made
             raise
     return out
 
