@@ -77,3 +77,26 @@ def test_same_seed_same_csv(sequence, tmp_path):
     a = run_track(sequence, tmp_path / "a.csv")
     b = run_track(sequence, tmp_path / "b.csv")
     assert len(a) == N_FRAMES and a == b
+
+
+def test_the_targets_own_flow_is_measured_only_while_the_box_holds_the_target(sequence):
+    """The target's own change of size is read from the pixels in the previous estimate's box only
+    while p(V=1|Z) there says the box holds the target (``scale.flow.min_p_visible``); below it the
+    box's points measure whatever it holds. Same tracker, same frames: only the posterior differs."""
+    from dataclasses import replace
+
+    src = open_source(sequence)
+    frames = list(src)
+    settings = profile_for(src)
+    tracker = Tracker.start(frames[0], src.truth[0], settings)
+    for f in frames[:6]:
+        tracker.step(f)
+    held = replace(tracker.last_state, p_visible=1.0)
+    tracker.last_state = held
+    measured = tracker._own_scale_change(frames[6])
+    assert measured is not None and abs(measured.dlog) < 0.05  # the car keeps its size
+    gate = settings.scale.flow.min_p_visible
+    tracker.last_state = replace(held, p_visible=gate - 0.01)
+    assert tracker._own_scale_change(frames[6]) is None
+    tracker.last_state = replace(held, p_visible=gate)
+    assert tracker._own_scale_change(frames[6]) is not None

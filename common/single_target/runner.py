@@ -307,10 +307,12 @@ class Tracker:
 
     def _own_scale_change(self, frame: Frame):
         """The target's own change of size from the previous frame to ``frame``, measured on its pixels
-        in the previous estimate's box (:mod:`common.single_target.target_flow`); None where not used."""
+        in the previous estimate's box (:mod:`common.single_target.target_flow`); None where not used, and
+        while the previous estimate's p(V=1|Z) is below ``scale.flow.min_p_visible`` (the box is not known
+        to hold the target)."""
         cfg = self.settings.scale.flow
         if (not cfg.enabled or self.stabiliser is None or self.scale.mode != "search" or self._prev_image is None
-                or self.last_state is None):
+                or self.last_state is None or self.last_state.p_visible < cfg.min_p_visible):
             return None
         box = self.last_state.oriented_box()
         if box is None:
