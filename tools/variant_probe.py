@@ -20,7 +20,8 @@ the run and per hundred frames, with one of two variants patched in (neither is 
 - ``--oracle-restart FRAME``: not a variant but a bound: the filter restarted at the ground truth
   (centre and scale) on that frame, as a re-acquisition would; what bridging a loss before it is worth.
   With ``--oracle-template-from F``, the template is also put back to the one the track had after
-  frame F: what a memory of the views it held would be worth.
+  frame F: what a memory of the views it held would be worth; with ``--oracle-no-restart`` only the
+  template is put back (the filter and the search go on from where they are).
 
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4 --colour-cue 5
@@ -158,10 +159,11 @@ def patch_footprint(frames_wide: float) -> None:
     resample.footprint_valid = footprint_valid
 
 
-def patch_oracle_restart(frame_index: int, truth, template_from: int | None = None) -> None:
+def patch_oracle_restart(frame_index: int, truth, template_from: int | None = None, restart: bool = True) -> None:
     """Restart the filter at the ground truth on ``frame_index`` (centre and scale; the angle the
     MAP's): what bridging a loss before that frame would be worth; with ``template_from``, also
-    match from then on with the template (and adaptive part) the track had after that frame."""
+    match from then on with the template (and adaptive part) the track had after that frame; with
+    ``restart`` False, only that (the filter and the search go on as they are)."""
     search, step = runner.Tracker._search, runner.Tracker.step
     first = max(truth[0][2], truth[0][3])
 
@@ -173,6 +175,11 @@ def patch_oracle_restart(frame_index: int, truth, template_from: int | None = No
 
     def patched_search(self, frame, h):
         if frame.index != frame_index:
+            return search(self, frame, h)
+        if not restart:
+            self.template, a = self._snapshot
+            self.adapter._a = a.copy()
+            self.detector.use_template(self.template)
             return search(self, frame, h)
         x, y, w, hh = truth[frame_index]
         theta = 0.0 if self.last_state is None else self.last_state.map_estimate.theta
@@ -211,6 +218,8 @@ def main() -> None:
     ap.add_argument("--cue-relative-cap", action="store_true")
     ap.add_argument("--oracle-restart", type=int, metavar="FRAME")
     ap.add_argument("--oracle-template-from", type=int, metavar="FRAME")
+    ap.add_argument("--oracle-no-restart", action="store_true",
+                    help="with --oracle-template-from: only put the template back at --oracle-restart's frame")
     a = ap.parse_args()
     if a.colour_cue is not None:
         patch_colour_cue(a.colour_cue, a.colour_background == "local")
@@ -221,7 +230,7 @@ def main() -> None:
     src = open_source(a.sequence)
     frames = list(src)
     if a.oracle_restart is not None:
-        patch_oracle_restart(a.oracle_restart, src.truth, a.oracle_template_from)
+        patch_oracle_restart(a.oracle_restart, src.truth, a.oracle_template_from, not a.oracle_no_restart)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], profile_for(src, seed=seed))
         err = []
