@@ -6,6 +6,8 @@ summary says how many frame images the .rrd kept; a bad mode is one line."""
 from __future__ import annotations
 
 import contextlib
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -43,7 +45,12 @@ def rerun_server(live: Path):
         yield f"rerun+http://127.0.0.1:{port}/proxy"
         time.sleep(1.0)
     finally:
-        server.terminate()
+        # `python -m rerun` runs the viewer binary as its child: stop the whole session's group, not
+        # only the wrapper (the binary was left running, holding its port, after every run)
+        try:
+            os.killpg(server.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
         server.wait(30)
 
 
