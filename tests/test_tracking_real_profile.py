@@ -2,6 +2,7 @@
 without a homography (stabilisation), a small car (upsampling), determinism of the CSV."""
 
 import csv
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -83,8 +84,6 @@ def test_the_targets_own_flow_is_measured_only_while_the_box_holds_the_target(se
     """The target's own change of size is read from the pixels in the previous estimate's box only
     while p(V=1|Z) there says the box holds the target (``scale.flow.min_p_visible``); below it the
     box's points measure whatever it holds. Same tracker, same frames: only the posterior differs."""
-    from dataclasses import replace
-
     src = open_source(sequence)
     frames = list(src)
     settings = profile_for(src)

@@ -176,19 +176,16 @@ def patch_oracle_restart(frame_index: int, truth, template_from: int | None = No
     def patched_search(self, frame, h):
         if frame.index != frame_index:
             return search(self, frame, h)
-        if not restart:
+        if template_from is not None:  # the restart below touches the scale and the filter only
             self.template, a = self._snapshot
             self.adapter._a = a.copy()
             self.detector.use_template(self.template)
+        if not restart:
             return search(self, frame, h)
         x, y, w, hh = truth[frame_index]
         theta = 0.0 if self.last_state is None else self.last_state.map_estimate.theta
         det = Detection(x=x + w / 2, y=y + hh / 2, theta_deg=theta, score=1.0, scale=max(w, hh) / first)
         self._restart_on(det, frame.time, h)
-        if template_from is not None:
-            self.template, a = self._snapshot
-            self.adapter._a = a.copy()
-            self.detector.use_template(self.template)
         return det
 
     runner.Tracker._search = patched_search
