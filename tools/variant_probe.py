@@ -159,7 +159,8 @@ def patch_footprint(frames_wide: float) -> None:
     resample.footprint_valid = footprint_valid
 
 
-def patch_oracle_restart(frame_index: int, truth, template_from: int | None = None, restart: bool = True) -> None:
+def patch_oracle_restart(frame_index: int, truth, template_from: int | None = None, restart: bool = True,
+                         retemplate: bool = False) -> None:
     """Restart the filter at the ground truth on ``frame_index`` (centre and scale; the angle the
     MAP's): what bridging a loss before that frame would be worth; with ``template_from``, also
     match from then on with the template (and adaptive part) the track had after that frame; with
@@ -186,6 +187,11 @@ def patch_oracle_restart(frame_index: int, truth, template_from: int | None = No
         theta = 0.0 if self.last_state is None else self.last_state.map_estimate.theta
         det = Detection(x=x + w / 2, y=y + hh / 2, theta_deg=theta, score=1.0, scale=max(w, hh) / first)
         self._restart_on(det, frame.time, h)
+        if retemplate:  # a fresh template of this frame's view at the truth, as at the start
+            from common.single_target.adaptation import TemplateAdapter
+            ad = self.settings.adaptation
+            self.template = self.detector.build_template(frame, (x + w / 2, y + hh / 2), (x, y, w, hh), self.factor)
+            self.adapter = TemplateAdapter(self.template, ad.rate, ad.anchor) if ad.enabled else None
         return det
 
     runner.Tracker._search = patched_search
@@ -217,6 +223,8 @@ def main() -> None:
     ap.add_argument("--oracle-template-from", type=int, metavar="FRAME")
     ap.add_argument("--oracle-no-restart", action="store_true",
                     help="with --oracle-template-from: only put the template back at --oracle-restart's frame")
+    ap.add_argument("--oracle-retemplate", action="store_true",
+                    help="with --oracle-restart: also build a new template from that frame's truth box")
     a = ap.parse_args()
     if a.colour_cue is not None:
         patch_colour_cue(a.colour_cue, a.colour_background == "local")
@@ -227,7 +235,8 @@ def main() -> None:
     src = open_source(a.sequence)
     frames = list(src)
     if a.oracle_restart is not None:
-        patch_oracle_restart(a.oracle_restart, src.truth, a.oracle_template_from, not a.oracle_no_restart)
+        patch_oracle_restart(a.oracle_restart, src.truth, a.oracle_template_from, not a.oracle_no_restart,
+                             a.oracle_retemplate)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], profile_for(src, seed=seed))
         err = []
