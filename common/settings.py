@@ -138,6 +138,14 @@ class ReacquisitionSettings(BaseModel):
     """Tiles searched per frame while lost."""
     grid_lengths: float = Field(0.3, gt=0)
     """Spacing of the candidate centres, in target lengths."""
+    restart_pos_lengths: float = Field(0.25, gt=0)
+    """The filter's position spread (1 sigma per axis, target lengths) when it restarts on a confirmed
+    detection: how far the detection may lie from the target's centre. The search finds the target
+    with a template of an earlier view (the view change is usually why the track was lost), and a
+    view the template has not seen registers on a part of the target, a fraction of its length off
+    its centre, not within the search grid's step; the likelihood pulls a cloud this wide onto the
+    target over the next frames, where a narrower one holds the displaced registration as its mode
+    and follows it off the target."""
     refine_candidates: int = Field(3, ge=1)
     """The best coarse candidates of a tile refined on finer grids."""
     scale_ratio: float = Field(2 ** 0.5, gt=1)

@@ -380,7 +380,7 @@ class Tracker:
         length_world = length_in_world(self.scale.target_length_px, (det.x, det.y), h)
         initial = InitialState.from_image_point(
             (det.x, det.y), h, time=None, theta=det.theta_deg, p_visible=1.0,
-            pos_std=self.settings.reacquisition.grid_lengths * length_world / 4,
+            pos_std=self.settings.reacquisition.restart_pos_lengths * length_world,
             vel_std=initial_vel_std(self.settings, length_world), theta_std=3.75)
         self.filter.restart(initial)
         self._restart_time = time
