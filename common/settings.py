@@ -48,9 +48,10 @@ class TemplateAdaptation(BaseModel):
     """At most one update per this many seconds (0: every frame that passes the gates); keeps the
     adaptation rate per second, not per frame, whatever the frame rate."""
     hold_after_restart_s: float = Field(0.5, ge=0)
-    """No update for this many seconds after a re-acquisition restarts the filter: the restart's
-    position is a search grid's (a quarter of its step), and until the cloud has settled on the peak
-    an update would take in a view off the target's centre, which the template then keeps matching
+    """No update for this many seconds after a re-acquisition restarts the filter: the restart is
+    where the search registered the target, its cloud ``reacquisition.restart_pos_lengths`` wide, and
+    until the cloud has settled on the peak an update would take in a view off the target's centre,
+    which the template then keeps matching
     (the synthetic re-entry: 5 px off for good, when the first update came the frame after it)."""
     align_lengths: float = Field(0.25, ge=0)
     """The update is taken where the template being matched registers the target best within this

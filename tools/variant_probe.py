@@ -21,7 +21,8 @@ the run and per hundred frames, with one of two variants patched in (neither is 
   (centre and scale) on that frame, as a re-acquisition would; what bridging a loss before it is worth.
   With ``--oracle-template-from F``, the template is also put back to the one the track had after
   frame F: what a memory of the views it held would be worth; with ``--oracle-no-restart`` only the
-  template is put back (the filter and the search go on from where they are).
+  template is put back (the filter and the search go on from where they are); with
+  ``--oracle-retemplate`` a new template is built from that frame's truth box, as at the start.
 
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4 --colour-cue 5
@@ -44,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import common.detector.resample as resample  # noqa: E402
 from common.settings import profile_for  # noqa: E402
 from common.single_target import runner  # noqa: E402
+from common.single_target.adaptation import TemplateAdapter  # noqa: E402
 from common.single_target.motion_cue import _RELATIVE_FLOOR, MotionCue  # noqa: E402
 from common.single_target.reacquire import Detection  # noqa: E402
 from common.sources import open_source  # noqa: E402
@@ -188,7 +190,6 @@ def patch_oracle_restart(frame_index: int, truth, template_from: int | None = No
         det = Detection(x=x + w / 2, y=y + hh / 2, theta_deg=theta, score=1.0, scale=max(w, hh) / first)
         self._restart_on(det, frame.time, h)
         if retemplate:  # a fresh template of this frame's view at the truth, as at the start
-            from common.single_target.adaptation import TemplateAdapter
             ad = self.settings.adaptation
             self.template = self.detector.build_template(frame, (x + w / 2, y + hh / 2), (x, y, w, hh), self.factor)
             self.adapter = TemplateAdapter(self.template, ad.rate, ad.anchor) if ad.enabled else None
