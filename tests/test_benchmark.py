@@ -3,6 +3,7 @@ tiny sequence folder written here, its bad-input errors, and (where an isolated 
 environment can be made offline) the peers' subprocess."""
 
 import json
+import math
 import shutil
 import subprocess
 from pathlib import Path
@@ -11,7 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from common.evaluation.benchmark import SUCCESS_THRESHOLDS, box_iou, mean_scores, score_boxes, success_curve
+from common.evaluation.benchmark import (PER_FRAME_COLUMNS, SUCCESS_THRESHOLDS, box_iou, mean_scores, score_boxes,
+                                         success_curve, write_per_frame)
 from services.cli import main
 from common.evaluation import precision_curve
 from common.sources import SyntheticSource
@@ -55,6 +57,24 @@ def test_success_curve_and_auc_by_hand():
     assert s.mean() == pytest.approx((20 + 11 + 3 + 0) / (4 * 21))
     assert s[0] == pytest.approx(3 / 4) and s[-1] == 0.0
     assert success_curve(np.array([np.nan]))[0] == 0.0  # no box: a miss
+
+
+def test_per_frame_csv_by_hand(tmp_path):
+    """Three frames: a box half off the truth (centre error 5 px, IoU 50/150), no box (a miss), no truth
+    (not scored); with a second run written after the first."""
+    truth = [(0, 0, 10, 10), (0, 0, 10, 10), None]
+    a = [(5, 0, 10, 10), (np.nan,) * 4, (1, 1, 2, 2)]
+    b = [(0, 0, 10, 10)] * 3
+    path = tmp_path / "f.csv"
+    write_per_frame(path, truth, [("mine", 3, a, score_boxes(a, truth)), ("peer", None, b, score_boxes(b, truth))])
+    rows = read_per_frame(path)
+    got = [(r["tracker"], r["seed"], r["frame"], r["x"], r["truth_w"], r["centre_error"], r["iou"]) for r in rows]
+    assert got[:3] == [("mine", "3", "0", "5.0", "10.0", "5.0", repr(50 / 150)), ("mine", "3", "1", "", "10.0", "", "0.0"),
+                       ("mine", "3", "2", "1.0", "", "", "")]
+    assert got[3:] == [("peer", "", "0", "0.0", "10.0", "0.0", "1.0"), ("peer", "", "1", "0.0", "10.0", "0.0", "1.0"),
+                       ("peer", "", "2", "0.0", "", "", "")]
+    with pytest.raises(ValueError, match="2 boxes for 3"):
+        write_per_frame(path, truth, [("short", None, a[:2], score_boxes(b, truth))])
 
 
 def test_score_boxes_excludes_frames_without_truth():
@@ -124,6 +144,32 @@ def test_benchmark_end_to_end(sequence, tmp_path, capsys):
     for path in (res["plots"]["precision"], res["plots"]["success"], res["plots"]["errors"]["carseq"]):
         assert Path(path).is_file() and Path(path).stat().st_size > 1000
     assert json.loads((out / "benchmark.json").read_text())["sequences"][0]["trackers"] == row["trackers"]
+    # every frame's box and score: the CSV's own columns give its errors and IoUs, and they give the figures
+    rows = read_per_frame(res["per_frame"]["carseq"])
+    assert [r["frame"] for r in rows] == [str(i) for i in range(10)] and {r["tracker"] for r in rows} == {"polartrack"}
+    assert [float(rows[0][k]) for k in ("truth_x", "truth_y", "truth_w", "truth_h")] == row["init_box"]
+    assert rows[6]["truth_x"] == rows[6]["centre_error"] == rows[6]["iou"] == ""  # no truth: not scored
+    scored = [r for r in rows if r["centre_error"] != ""]
+    assert len(scored) == 9
+    for r in scored:
+        x, y, w, h, tx, ty, tw, th = (float(r[k]) for k in ("x", "y", "w", "h", "truth_x", "truth_y", "truth_w", "truth_h"))
+        assert float(r["centre_error"]) == pytest.approx(math.hypot(x + w / 2 - tx - tw / 2, y + h / 2 - ty - th / 2), abs=1e-9)
+        ix = max(0.0, min(x + w, tx + tw) - max(x, tx))
+        iy = max(0.0, min(y + h, ty + th) - max(y, ty))
+        assert float(r["iou"]) == pytest.approx(ix * iy / (w * h + tw * th - ix * iy), abs=1e-9)
+    errors = np.array([float(r["centre_error"]) for r in scored])
+    assert pt["mean_err"] == pytest.approx(errors.mean(), abs=1e-3)
+    assert pt["precision20"] == pytest.approx(np.mean(errors <= 20), abs=1e-4)
+    assert pt["frames_lost"] == sum(float(r["iou"]) <= 0 for r in scored)
+
+
+def read_per_frame(path) -> list[dict]:
+    import csv
+
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert rows and list(rows[0]) == list(PER_FRAME_COLUMNS)
+    return rows
 
 
 def test_benchmark_over_seeds(sequence, tmp_path, capsys):
@@ -136,6 +182,13 @@ def test_benchmark_over_seeds(sequence, tmp_path, capsys):
     for key in ("precision20", "auc50", "success_auc", "mean_err"):
         assert pt[key] == pytest.approx(np.mean([r[key] for r in pt["seeds"]]), abs=1e-4)
     assert len({r["mean_err"] for r in pt["seeds"]}) > 1
+    # the per-frame CSV has every seed's run, each giving that seed's figures
+    res_a = json.loads((tmp_path / "a" / "benchmark.json").read_text())
+    rows = read_per_frame(res_a["per_frame"]["carseq"])
+    assert [(r["seed"], r["frame"]) for r in rows] == [(str(s), str(i)) for s in (4, 5, 6) for i in range(8)]
+    for per in pt["seeds"]:
+        errors = [float(r["centre_error"]) for r in rows if r["seed"] == str(per["seed"]) and r["centre_error"]]
+        assert per["mean_err"] == pytest.approx(np.mean(errors), abs=1e-3)
     assert main([*base, "--out", str(tmp_path / "b"), "--seed", "4"]) == 0
     one = json.loads(capsys.readouterr().out)["sequences"][0]["trackers"]["polartrack"]
     assert "seeds" not in one and one["mean_err"] == pt["seeds"][0]["mean_err"]
@@ -146,7 +199,7 @@ def test_benchmark_over_seeds(sequence, tmp_path, capsys):
 
 def _without_fps(value):
     if isinstance(value, dict):
-        return {k: _without_fps(v) for k, v in value.items() if k not in ("fps", "jobs", "plots", "ms_per_searched_frame")}
+        return {k: _without_fps(v) for k, v in value.items() if k not in ("fps", "jobs", "plots", "per_frame", "ms_per_searched_frame")}
     if isinstance(value, list):
         return [_without_fps(v) for v in value]
     return value
@@ -166,6 +219,7 @@ def test_benchmark_jobs_give_the_figures_of_one_at_a_time(sequence, tmp_path, ca
     seeds = two["sequences"][0]["trackers"]["polartrack"]["seeds"]
     assert [r["seed"] for r in seeds] == [4, 5] and seeds[0]["mean_err"] != seeds[1]["mean_err"]
     assert _without_fps(two) == _without_fps(one)
+    assert (tmp_path / "a" / "frames-carseq.csv").read_bytes() == (tmp_path / "b" / "frames-carseq.csv").read_bytes()
     with pytest.raises(SystemExit) as exc:
         main([*base, "--jobs", "0"])
     assert exc.value.code == 2 and "--jobs" in capsys.readouterr().err

@@ -15,12 +15,15 @@ target are left out of every score. Over the remaining ("visible") frames:
 - ``frames_lost``: frames whose box does not overlap the target at all (IoU = 0, no box included),
   the failure criterion of VOT: unlike a centre-error cut it scales with the target's size.
 
+Every frame's boxes and scores are written by :func:`write_per_frame` (one CSV per sequence).
 Pure numpy; the plots are in :mod:`common.evaluation.plots`.
 """
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -122,3 +125,31 @@ def mean_scores(rows: list[dict], keys=SCORE_KEYS) -> dict:
             out[k] = round(float(np.mean(vals)), 4)
     out["sequences"] = len(rows)
     return out
+
+
+PER_FRAME_COLUMNS = ("frame", "tracker", "seed", "x", "y", "w", "h", "truth_x", "truth_y", "truth_w", "truth_h",
+                     "centre_error", "iou")
+
+
+def write_per_frame(path: str | Path, truth, runs) -> None:
+    """One CSV of every frame's box and score for one sequence: a row per frame and run, columns
+    :data:`PER_FRAME_COLUMNS`. ``runs`` is ``(tracker, seed or None, boxes, score)`` per run, ``score``
+    the :class:`SequenceScore` of ``boxes`` against ``truth``; ``frame`` counts from 0 in the
+    sequence's order, boxes are 0-based pixels as scored, and an empty cell is a NaN: a frame
+    without a visible target has empty truth, ``centre_error`` and ``iou`` (it is not scored), a
+    scored frame without a box an empty box and ``centre_error`` and an ``iou`` of 0 (a miss)."""
+    gt = as_boxes(truth)
+
+    def cell(v) -> str:
+        return "" if v is None or not np.isfinite(v) else repr(float(v))
+
+    with open(path, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(PER_FRAME_COLUMNS)
+        for name, seed, boxes, score in runs:
+            pred = as_boxes(boxes)
+            if len(pred) != len(gt):
+                raise ValueError(f"{name}: {len(pred)} boxes for {len(gt)} ground-truth frames")
+            for i in range(len(gt)):
+                out.writerow([i, name, "" if seed is None else seed, *map(cell, pred[i]), *map(cell, gt[i]),
+                              cell(score.errors[i]), cell(score.ious[i])])

@@ -15,7 +15,9 @@ not overlap the target, IoU = 0) and fps (frames over the time in the tracker's 
 reading the images not included); the mean weighs every sequence the same. A peer's
 ``failures`` counts the frames where OpenCV reported failure (it keeps its last box there). Writes under --out
 precision.png and success.png (one curve per tracker, AUC in the legend), errors-SEQ.png per
-sequence (centre error per frame) and benchmark.json (what --json prints). ``--jobs N`` makes N of
+sequence (centre error per frame), frames-SEQ.csv per sequence (every run's box, centre error and
+IoU on every frame: one run per tracker, PolarTrack's one per seed) and benchmark.json (what
+--json prints). ``--jobs N`` makes N of
 PolarTrack's runs (sequences x seeds) at once, each in a spawned worker process that opens its
 sequence again: every run is a function of its sequence, settings and seed alone, so the boxes and
 figures are those of one run at a time (tested); only the timings (fps, the re-acquisition's ms per
@@ -59,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("sequences", nargs="+", metavar="SEQ_DIR", help="UAV123/OTB folders: img/*.jpg + groundtruth_rect.txt")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="DIR", default="recordings/benchmark",
-                   help="where to write the plots and benchmark.json (default recordings/benchmark)")
+                   help="where to write the plots, the per-frame CSVs and benchmark.json (default recordings/benchmark)")
     p.add_argument("--peers", action="store_true", help="also OpenCV's CSRT, KCF and NanoTrack v2 (isolated environment)")
     p.add_argument("--nanotrack-dir", metavar="DIR", default="../shared/models/nanotrack-v2",
                    help="NanoTrack v2's ONNX files for --peers (default ../shared/models/nanotrack-v2)")
@@ -231,7 +233,7 @@ def run_peers(prefix: list[str], spec: str, init, args, n_frames: int, bar) -> d
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from common.evaluation.benchmark import as_boxes, mean_scores, score_boxes
+    from common.evaluation.benchmark import as_boxes, mean_scores, score_boxes, write_per_frame
     from common.evaluation.plots import plot_curves, plot_errors_over_time
 
     sequences = open_sequences(args)
@@ -239,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     trackers = ["polartrack", *(PEERS if args.peers else ())]
-    rows, curves, plots, opencv = [], {"precision": {}, "success": {}}, {}, None
+    rows, curves, plots, frame_files, opencv = [], {"precision": {}, "success": {}}, {}, {}, None
     quiet = args.no_progress
     all_seeded = run_all_polartrack(sequences, args, quiet)  # per sequence: (boxes, elapsed, re-acquisition) per seed
     for (spec, source, init, settings), seeded in zip(sequences, all_seeded):
@@ -267,13 +269,18 @@ def run(args: argparse.Namespace) -> int:
             curves["success"].setdefault(name, []).append(sc.success)
         if reacq is not None:
             results["polartrack"]["reacquisition"] = reacq
+        seed_scores = [(seed, b, el, scores["polartrack"] if seed == args.seed else score_boxes(b, truth))
+                       for seed, (b, el, _) in zip(range(args.seed, args.seed + args.seeds), seeded)]
         if args.seeds > 1:
-            per_seed = []
-            for seed, (b, el, _) in zip(range(args.seed, args.seed + args.seeds), seeded):
-                sc = scores["polartrack"] if seed == args.seed else score_boxes(b, truth)
-                per_seed.append({"seed": seed, **sc.as_dict(), "fps": round(len(source) / el, 1) if el > 0 else None})
+            per_seed = [{"seed": seed, **sc.as_dict(), "fps": round(len(source) / el, 1) if el > 0 else None}
+                        for seed, _, el, sc in seed_scores]
             means = {k: v for k, v in mean_scores(per_seed).items() if k != "sequences"}
             results["polartrack"] = {**results["polartrack"], **means, "seeds": per_seed}
+        per_frame = [("polartrack", seed, b, sc) for seed, b, _, sc in seed_scores]
+        per_frame += [(name, None, b, scores[name]) for name, (b, _) in runs.items() if name != "polartrack"]
+        frames_csv = out_dir / f"frames-{source.name}.csv"
+        write_per_frame(frames_csv, truth, per_frame)
+        frame_files[source.name] = str(frames_csv)
         plot = out_dir / f"errors-{source.name}.png"
         visible = ~np.isnan(truth).any(axis=1)
         plot_errors_over_time({n: sc.errors for n, sc in scores.items()}, visible, plot,
@@ -288,11 +295,14 @@ def run(args: argparse.Namespace) -> int:
     summary = {"trackers": trackers, "jobs": args.jobs, "sequences": rows, "mean": mean,
                "plots": {"precision": str(out_dir / "precision.png"), "success": str(out_dir / "success.png"),
                          "errors": plots},
+               "per_frame": frame_files,
                "definitions": {"scored_frames": "frames whose ground truth is a box (NaN rows left out)",
                                "success_auc": "mean over IoU thresholds 0, 0.05, ..., 1 of the fraction of "
                                               "scored frames with IoU above the threshold (OTB)",
                                "frames_lost": "scored frames whose box does not overlap the truth (IoU = 0)",
                                "mean": "mean over sequences, each weighing the same",
+                               "per_frame": "per sequence, a CSV of every run's box and score on every frame "
+                                            "(frame from 0, 0-based pixels; polartrack one run per seed)",
                                "jobs": "PolarTrack's runs made at once (--jobs); its timings (fps, ms per "
                                        "searched frame) were measured while that many ran",
                                "seeds": "with --seeds N, PolarTrack's figures per sequence are the mean "
