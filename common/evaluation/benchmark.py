@@ -16,7 +16,7 @@ target are left out of every score. Over the remaining ("visible") frames:
   the failure criterion of VOT: unlike a centre-error cut it scales with the target's size.
 
 Every frame's boxes and scores are written by :func:`write_per_frame` (one CSV per sequence).
-Pure numpy; the plots are in :mod:`common.evaluation.plots`.
+Numpy and the standard csv module; the plots are in :mod:`common.evaluation.plots`.
 """
 
 from __future__ import annotations
