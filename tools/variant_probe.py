@@ -23,6 +23,9 @@ the run and per hundred frames, with one of two variants patched in (neither is 
   frame F: what a memory of the views it held would be worth; with ``--oracle-no-restart`` only the
   template is put back (the filter and the search go on from where they are); with
   ``--oracle-retemplate`` a new template is built from that frame's truth box, as at the start.
+- ``--oracle-template-every N``: a bound too: every N frames a new template built at the truth's
+  box (the filter, the scale and the search left alone): what a recent view kept registered on the
+  target would be worth.
 
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4
     uv run python tools/variant_probe.py ../shared/data/uav123-car16 --seeds 0,1,2,3,4 --colour-cue 5
@@ -49,6 +52,7 @@ from common.single_target.adaptation import TemplateAdapter  # noqa: E402
 from common.single_target.motion_cue import _RELATIVE_FLOOR, MotionCue  # noqa: E402
 from common.single_target.reacquire import Detection  # noqa: E402
 from common.sources import open_source  # noqa: E402
+from common.tracking.state import InitError  # noqa: E402
 from common.tracking.observation import CuedObservation  # noqa: E402
 
 BINS = 16
@@ -199,6 +203,31 @@ def patch_oracle_restart(frame_index: int, truth, template_from: int | None = No
     runner.Tracker.step = patched_step
 
 
+def patch_oracle_template_every(every: int, truth) -> None:
+    """Every ``every`` frames, a new template built at the ground truth's box on that frame (its view,
+    registered on the target), at the track's own matching scale, the adaptation started again from
+    it; the filter, the scale and the search go on as they are: what a recent view kept registered
+    on the target would be worth."""
+    step = runner.Tracker.step
+
+    def patched_step(self, frame):
+        state = step(self, frame)
+        t = truth[frame.index] if frame.index < len(truth) else None
+        if frame.index > 0 and frame.index % every == 0 and t is not None:
+            x, y, w, hh = t
+            try:
+                template = self.detector.build_template(frame, (x + w / 2, y + hh / 2), (x, y, w, hh), self.factor)
+            except (ValueError, InitError):
+                return state  # the truth's footprint is not whole in the frame: keep the template
+            ad = self.settings.adaptation
+            self.template = template
+            self.adapter = TemplateAdapter(template, ad.rate, ad.anchor) if ad.enabled else None
+            self.detector.use_template(template)
+        return state
+
+    runner.Tracker.step = patched_step
+
+
 def patch_cue_relative_cap() -> None:
     """The motion cue's cap slid to the region's strongest box: a box's z less (the region's best z
     less the cap), so the best box gets the cap and a box beside it less, where both now saturate."""
@@ -226,6 +255,8 @@ def main() -> None:
                     help="with --oracle-template-from: only put the template back at --oracle-restart's frame")
     ap.add_argument("--oracle-retemplate", action="store_true",
                     help="with --oracle-restart: also build a new template from that frame's truth box")
+    ap.add_argument("--oracle-template-every", type=int, metavar="N",
+                    help="a new template at the truth's box every N frames (the filter left alone)")
     a = ap.parse_args()
     if a.colour_cue is not None:
         patch_colour_cue(a.colour_cue, a.colour_background == "local")
@@ -238,6 +269,8 @@ def main() -> None:
     if a.oracle_restart is not None:
         patch_oracle_restart(a.oracle_restart, src.truth, a.oracle_template_from, not a.oracle_no_restart,
                              a.oracle_retemplate)
+    if a.oracle_template_every is not None:
+        patch_oracle_template_every(a.oracle_template_every, src.truth)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], profile_for(src, seed=seed))
         err = []
