@@ -53,6 +53,7 @@ from common.single_target.motion_cue import _RELATIVE_FLOOR, MotionCue  # noqa: 
 from common.single_target.reacquire import Detection  # noqa: E402
 from common.sources import open_source  # noqa: E402
 from common.tracking.state import InitError  # noqa: E402
+from services.commands.common_args import apply_overrides  # noqa: E402
 from common.tracking.observation import CuedObservation  # noqa: E402
 
 BINS = 16
@@ -257,6 +258,8 @@ def main() -> None:
                     help="with --oracle-restart: also build a new template from that frame's truth box")
     ap.add_argument("--oracle-template-every", type=int, metavar="N",
                     help="a new template at the truth's box every N frames (the filter left alone)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                    help="override a tracker setting by its dotted name (repeatable), as on benchmark")
     a = ap.parse_args()
     if a.colour_cue is not None:
         patch_colour_cue(a.colour_cue, a.colour_background == "local")
@@ -272,7 +275,7 @@ def main() -> None:
     if a.oracle_template_every is not None:
         patch_oracle_template_every(a.oracle_template_every, src.truth)
     for seed in (int(s) for s in a.seeds.split(",")):
-        tracker = runner.Tracker.start(frames[0], src.truth[0], profile_for(src, seed=seed))
+        tracker = runner.Tracker.start(frames[0], src.truth[0], apply_overrides(profile_for(src, seed=seed), a.overrides))
         err = []
         for frame, (x, y, w, h) in zip(frames, src.truth):
             m = tracker.step(frame).map_estimate
