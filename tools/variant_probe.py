@@ -23,6 +23,9 @@ the run and per hundred frames, with one of two variants patched in (neither is 
   frame F: what a memory of the views it held would be worth; with ``--oracle-no-restart`` only the
   template is put back (the filter and the search go on from where they are); with
   ``--oracle-retemplate`` a new template is built from that frame's truth box, as at the start.
+- ``--segment-recentre N``: not a bound: every N frames while held, a new template at the centre
+  of a GrabCut segment of the target about the estimate (no ground truth), the template's
+  registration taken from the target's extent.
 - ``--oracle-template-every N``: a bound too: every N frames a new template built at the truth's
   box (the filter, the scale and the search left alone): what a recent view kept registered on the
   target would be worth.
@@ -229,6 +232,67 @@ def patch_oracle_template_every(every: int, truth) -> None:
     runner.Tracker.step = patched_step
 
 
+def _segment_centre(img: np.ndarray, cx: float, cy: float, length: float, box_area: float,
+                    reach: float = 1.0, work_px: int = 128) -> tuple[float, float] | None:
+    """The centre of GrabCut's largest foreground component in the square ``reach`` lengths either
+    side of (cx, cy) (a crop a further length wide as the background, worked at ``work_px``), or None
+    where nothing plausible is found (an area outside 0.2-2 times ``box_area``). OpenCV's RNG is
+    seeded before each call (GrabCut's k-means draws from it)."""
+    h, w = img.shape[:2]
+    r = reach * length + length
+    x0, y0, x1, y1 = int(max(0, cx - r)), int(max(0, cy - r)), int(min(w, cx + r)), int(min(h, cy + r))
+    crop = img[y0:y1, x0:x1]
+    if crop.shape[0] < 16 or crop.shape[1] < 16:
+        return None
+    f = min(1.0, work_px / max(crop.shape[:2]))
+    small = cv2.resize(crop, (max(8, int(crop.shape[1] * f)), max(8, int(crop.shape[0] * f))), interpolation=cv2.INTER_AREA)
+    rect = (int(max(1, (cx - reach * length - x0) * f)), int(max(1, (cy - reach * length - y0) * f)),
+            int(min(small.shape[1] - 2, 2 * reach * length * f)), int(min(small.shape[0] - 2, 2 * reach * length * f)))
+    mask = np.zeros(small.shape[:2], np.uint8)
+    cv2.setRNGSeed(0)
+    try:
+        cv2.grabCut(np.ascontiguousarray(small[:, :, ::-1]), mask, rect, np.zeros((1, 65)), np.zeros((1, 65)), 3,
+                    cv2.GC_INIT_WITH_RECT)
+    except cv2.error:
+        return None
+    fg = ((mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)).astype(np.uint8)
+    n, _, stats, centres = cv2.connectedComponentsWithStats(fg, connectivity=8)
+    if n <= 1:
+        return None
+    i = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    if not 0.2 * box_area <= stats[i, cv2.CC_STAT_AREA] / f / f <= 2.0 * box_area:
+        return None
+    return x0 + centres[i, 0] / f, y0 + centres[i, 1] / f
+
+
+def patch_segment_recentre(every: int) -> None:
+    """Every ``every`` frames while p(V=1|Z) >= 0.5, a new template built at the centre of a GrabCut
+    segment of the target about the estimate (``_segment_centre``; no ground truth), at the track's
+    box and matching scale, the adaptation restarted from it: the template's registration taken
+    from the target's extent instead of from the template's own match."""
+    step = runner.Tracker.step
+
+    def patched_step(self, frame):
+        state = step(self, frame)
+        if frame.index > 0 and frame.index % every == 0 and state.p_visible >= 0.5:
+            m = state.map_estimate
+            bw, bh = state.size
+            c = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, self.scale.target_length_px, bw * bh)
+            if c is None:
+                return state
+            try:
+                template = self.detector.build_template(frame, c, (c[0] - bw / 2, c[1] - bh / 2, bw, bh), self.factor)
+            except (ValueError, InitError):
+                return state
+            ad = self.settings.adaptation
+            self.template = template
+            self.adapter = TemplateAdapter(template, ad.rate, ad.anchor) if ad.enabled else None
+            self.detector.use_template(template)
+        return state
+
+    runner.Tracker.step = patched_step
+
+
 def patch_cue_relative_cap() -> None:
     """The motion cue's cap slid to the region's strongest box: a box's z less (the region's best z
     less the cap), so the best box gets the cap and a box beside it less, where both now saturate."""
@@ -258,6 +322,8 @@ def main() -> None:
                     help="with --oracle-restart: also build a new template from that frame's truth box")
     ap.add_argument("--oracle-template-every", type=int, metavar="N",
                     help="a new template at the truth's box every N frames (the filter left alone)")
+    ap.add_argument("--segment-recentre", type=int, metavar="N",
+                    help="every N frames a new template at a GrabCut segment's centre about the estimate")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                     help="override a tracker setting by its dotted name (repeatable), as on benchmark")
     a = ap.parse_args()
@@ -274,6 +340,8 @@ def main() -> None:
                              a.oracle_retemplate)
     if a.oracle_template_every is not None:
         patch_oracle_template_every(a.oracle_template_every, src.truth)
+    if a.segment_recentre is not None:
+        patch_segment_recentre(a.segment_recentre)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], apply_overrides(profile_for(src, seed=seed), a.overrides))
         err = []
