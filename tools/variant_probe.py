@@ -265,7 +265,7 @@ def _segment_centre(img: np.ndarray, cx: float, cy: float, length: float, box_ar
     return x0 + centres[i, 0] / f, y0 + centres[i, 1] / f
 
 
-def patch_segment_recentre(every: int) -> None:
+def patch_segment_recentre(every: int, agree: float | None = None) -> None:
     """Every ``every`` frames while p(V=1|Z) >= 0.5, a new template built at the centre of a GrabCut
     segment of the target about the estimate (``_segment_centre``; no ground truth), at the track's
     box and matching scale, the adaptation restarted from it: the template's registration taken
@@ -277,9 +277,14 @@ def patch_segment_recentre(every: int) -> None:
         if frame.index > 0 and frame.index % every == 0 and state.p_visible >= 0.5:
             m = state.map_estimate
             bw, bh = state.size
-            c = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, self.scale.target_length_px, bw * bh)
+            length = self.scale.target_length_px
+            c = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, length, bw * bh)
             if c is None:
                 return state
+            if agree is not None:  # a second segmentation, its rectangle a quarter smaller, must agree
+                c2 = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, length, bw * bh, reach=0.75)
+                if c2 is None or math.hypot(c[0] - c2[0], c[1] - c2[1]) > agree * length:
+                    return state
             try:
                 template = self.detector.build_template(frame, c, (c[0] - bw / 2, c[1] - bh / 2, bw, bh), self.factor)
             except (ValueError, InitError):
@@ -324,6 +329,9 @@ def main() -> None:
                     help="a new template at the truth's box every N frames (the filter left alone)")
     ap.add_argument("--segment-recentre", type=int, metavar="N",
                     help="every N frames a new template at a GrabCut segment's centre about the estimate")
+    ap.add_argument("--segment-agree", type=float, metavar="LENGTHS",
+                    help="with --segment-recentre: a second segmentation (a rectangle a quarter smaller) must "
+                         "put the centre within LENGTHS target lengths of the first")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                     help="override a tracker setting by its dotted name (repeatable), as on benchmark")
     a = ap.parse_args()
@@ -341,7 +349,7 @@ def main() -> None:
     if a.oracle_template_every is not None:
         patch_oracle_template_every(a.oracle_template_every, src.truth)
     if a.segment_recentre is not None:
-        patch_segment_recentre(a.segment_recentre)
+        patch_segment_recentre(a.segment_recentre, a.segment_agree)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], apply_overrides(profile_for(src, seed=seed), a.overrides))
         err = []
