@@ -265,7 +265,7 @@ def _segment_centre(img: np.ndarray, cx: float, cy: float, length: float, box_ar
     return x0 + centres[i, 0] / f, y0 + centres[i, 1] / f
 
 
-def patch_segment_recentre(every: int, agree: float | None = None) -> None:
+def patch_segment_recentre(every: int, agree: float | None = None, consistent: float | None = None) -> None:
     """Every ``every`` frames while p(V=1|Z) >= 0.5, a new template built at the centre of a GrabCut
     segment of the target about the estimate (``_segment_centre``; no ground truth), at the track's
     box and matching scale, the adaptation restarted from it: the template's registration taken
@@ -280,7 +280,13 @@ def patch_segment_recentre(every: int, agree: float | None = None) -> None:
             length = self.scale.target_length_px
             c = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, length, bw * bh)
             if c is None:
+                self._segment_offset = None
                 return state
+            if consistent is not None:  # the segment's offset from the MAP, in lengths, as at the last attempt
+                off = ((c[0] - m.image_x) / length, (c[1] - m.image_y) / length)
+                last, self._segment_offset = getattr(self, "_segment_offset", None), off
+                if last is None or math.hypot(off[0] - last[0], off[1] - last[1]) > consistent:
+                    return state
             if agree is not None:  # a second segmentation, its rectangle a quarter smaller, must agree
                 c2 = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, length, bw * bh, reach=0.75)
                 if c2 is None or math.hypot(c[0] - c2[0], c[1] - c2[1]) > agree * length:
@@ -332,6 +338,9 @@ def main() -> None:
     ap.add_argument("--segment-agree", type=float, metavar="LENGTHS",
                     help="with --segment-recentre: a second segmentation (a rectangle a quarter smaller) must "
                          "put the centre within LENGTHS target lengths of the first")
+    ap.add_argument("--segment-consistent", type=float, metavar="LENGTHS",
+                    help="with --segment-recentre: the segment's offset from the MAP must be within LENGTHS "
+                         "target lengths of the offset at the previous attempt")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                     help="override a tracker setting by its dotted name (repeatable), as on benchmark")
     a = ap.parse_args()
@@ -349,7 +358,7 @@ def main() -> None:
     if a.oracle_template_every is not None:
         patch_oracle_template_every(a.oracle_template_every, src.truth)
     if a.segment_recentre is not None:
-        patch_segment_recentre(a.segment_recentre, a.segment_agree)
+        patch_segment_recentre(a.segment_recentre, a.segment_agree, a.segment_consistent)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], apply_overrides(profile_for(src, seed=seed), a.overrides))
         err = []
