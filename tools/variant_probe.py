@@ -1,8 +1,9 @@
-"""Two ideas probed on real footage in stop 31 and not kept: a colour cue, and wider footprints.
+"""Variants and bounds probed on real footage (stops 31-34), none of them in the product.
 
-A diagnostic for docs/real-footage.md ("Probed in stop 31"). It runs the in-process tracker (the
-real-footage profile) on one UAV123/OTB sequence for the given seeds and prints precision@20 over
-the run and per hundred frames, with one of two variants patched in (neither is in the product):
+A diagnostic for docs/real-footage.md ("Probed in stop 31" to "Probed in stop 34"). It runs the
+in-process tracker (the real-footage profile, ``--set`` overrides) on one UAV123/OTB sequence for
+the given seeds and prints precision@20 over the run and per hundred frames, with a variant or an
+oracle patched in:
 
 - ``--colour-cue ZCAP``: a colour cue added to the moving-target cue. The target's colour
   histogram (16 bins a channel) from the ellipse inscribed in the first box, the background's from
@@ -55,9 +56,9 @@ from common.single_target.adaptation import TemplateAdapter  # noqa: E402
 from common.single_target.motion_cue import _RELATIVE_FLOOR, MotionCue  # noqa: E402
 from common.single_target.reacquire import Detection  # noqa: E402
 from common.sources import open_source  # noqa: E402
+from common.tracking.observation import CuedObservation  # noqa: E402
 from common.tracking.state import InitError  # noqa: E402
 from services.commands.common_args import apply_overrides  # noqa: E402
-from common.tracking.observation import CuedObservation  # noqa: E402
 
 BINS = 16
 FLOOR = 0.05
@@ -198,13 +199,24 @@ def patch_oracle_restart(frame_index: int, truth, template_from: int | None = No
         det = Detection(x=x + w / 2, y=y + hh / 2, theta_deg=theta, score=1.0, scale=max(w, hh) / first)
         self._restart_on(det, frame.time, h)
         if retemplate:  # a fresh template of this frame's view at the truth, as at the start
-            ad = self.settings.adaptation
-            self.template = self.detector.build_template(frame, (x + w / 2, y + hh / 2), (x, y, w, hh), self.factor)
-            self.adapter = TemplateAdapter(self.template, ad.rate, ad.anchor) if ad.enabled else None
+            _retemplate(self, frame, (x + w / 2, y + hh / 2), (x, y, w, hh))
         return det
 
     runner.Tracker._search = patched_search
     runner.Tracker.step = patched_step
+
+
+def _retemplate(tracker, frame, centre: tuple[float, float], box: tuple[float, float, float, float]) -> bool:
+    """A new template built on ``frame`` at ``centre`` and ``box`` at the track's matching scale, as
+    at the start (building it puts it in use), the adaptation started again from it; False where
+    its footprint is not whole in the frame (the template kept)."""
+    try:
+        tracker.template = tracker.detector.build_template(frame, centre, box, tracker.factor)
+    except (ValueError, InitError):
+        return False
+    ad = tracker.settings.adaptation
+    tracker.adapter = TemplateAdapter(tracker.template, ad.rate, ad.anchor) if ad.enabled else None
+    return True
 
 
 def patch_oracle_template_every(every: int, truth) -> None:
@@ -219,14 +231,7 @@ def patch_oracle_template_every(every: int, truth) -> None:
         t = truth[frame.index] if frame.index < len(truth) else None
         if frame.index > 0 and frame.index % every == 0 and t is not None:
             x, y, w, hh = t
-            try:
-                template = self.detector.build_template(frame, (x + w / 2, y + hh / 2), (x, y, w, hh), self.factor)
-            except (ValueError, InitError):
-                return state  # the truth's footprint is not whole in the frame: keep the template
-            ad = self.settings.adaptation
-            self.template = template
-            self.adapter = TemplateAdapter(template, ad.rate, ad.anchor) if ad.enabled else None
-            self.detector.use_template(template)
+            _retemplate(self, frame, (x + w / 2, y + hh / 2), (x, y, w, hh))
         return state
 
     runner.Tracker.step = patched_step
@@ -291,14 +296,7 @@ def patch_segment_recentre(every: int, agree: float | None = None, consistent: f
                 c2 = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, length, bw * bh, reach=0.75)
                 if c2 is None or math.hypot(c[0] - c2[0], c[1] - c2[1]) > agree * length:
                     return state
-            try:
-                template = self.detector.build_template(frame, c, (c[0] - bw / 2, c[1] - bh / 2, bw, bh), self.factor)
-            except (ValueError, InitError):
-                return state
-            ad = self.settings.adaptation
-            self.template = template
-            self.adapter = TemplateAdapter(template, ad.rate, ad.anchor) if ad.enabled else None
-            self.detector.use_template(template)
+            _retemplate(self, frame, c, (c[0] - bw / 2, c[1] - bh / 2, bw, bh))
         return state
 
     runner.Tracker.step = patched_step
