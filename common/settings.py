@@ -62,6 +62,56 @@ class TemplateAdaptation(BaseModel):
     up update after update (Matthews, Ishikawa and Baker's template-update problem)."""
 
 
+class SegmentRegistration(BaseModel):
+    """The template re-registered on a segmentation of the target (not in the papers; see
+    :mod:`common.single_target.segment`).
+
+    Template adaptation registers each update where the template itself matches best, so an error
+    in its registration is kept and grows (Matthews, Ishikawa and Baker's template-update problem);
+    the anchor to the original bounds the drift but not the offset. Every ``interval_s`` while the
+    target is held but matched poorly, GrabCut segments it in a square about the estimate (the colour of what is
+    inside against what is around it: independent of the template); where the segment is shaped
+    like a vehicle, the template is built again where the segment puts the target and the matching
+    scale set from the segment's length, in the relation the first box's own segment had to the
+    first box."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
+
+    enabled: bool = False
+    """Re-register at all (the real-footage profile does; needs the frames' pixels, i.e. a stabilising
+    tracker)."""
+    interval_s: float = Field(1.0, gt=0)
+    """At most one segmentation per this many seconds: the adaptation's time constant (about a
+    second, ``REAL_ADAPTATION``), within which its registration error builds up."""
+    min_p_visible: float = Field(0.5, ge=0, le=1)
+    """Only while p(V=1|Z) is at least this (the target held, as ``reacquisition.lost_p_visible``)."""
+    score_quantile: float = Field(0.5, gt=0, le=1)
+    """... and while the estimate's own score is below this quantile of the likelihood's Beta for a
+    visible target (the median, 0.69 for the synthetic fit): the template's registration is in
+    question only where it matches the target it holds worse than it matches a visible target
+    half the time. A template that matches well is not moved: GrabCut's segment of a two-tone
+    vehicle is bistable (a dark windscreen in or out of it), and would otherwise move a template
+    that holds the target to within a pixel (docs/real-footage.md, stop 35)."""
+    reach_lengths: float = Field(1.0, gt=0)
+    """GrabCut's rectangle: this many target lengths either side of the estimate (the target inside
+    it whatever its orientation, for a registration error up to half a length)."""
+    margin_lengths: float = Field(1.0, gt=0)
+    """... inside a crop a further this many lengths wide: the background the colour models learn."""
+    work_px: int = Field(128, ge=32)
+    """The crop is worked at this size (its long side): the CPU per segmentation stays bounded
+    whatever the target's size."""
+    iterations: int = Field(3, ge=1)
+    """GrabCut's iterations (OpenCV's example uses a few; the segment changes little after three)."""
+    area_range: tuple[float, float] = (0.2, 2.0)
+    """The segment (its largest connected component) counts only when its area is within this range
+    of the track's box's: a loose first box holds a vehicle in a fifth of it; above twice the box, the
+    segment has taken in the road or a neighbour."""
+    min_solidity: float = Field(0.785, ge=0, le=1)
+    """... and when it fills at least this much of its minimum-area rectangle: pi/4, the share of the
+    inscribed ellipse. A vehicle seen from above is a rounded rectangle; a part of one with road or
+    shadow about it is ragged (docs/real-footage.md, stop 35)."""
+
+
 class ScaleSettings(BaseModel):
     """Matching at the target's scale (see :mod:`common.single_target.scale` and :mod:`common.detector.resample`).
 
@@ -212,6 +262,7 @@ class TrackerSettings(BaseModel):
     ScaleSettings()'s own defaults (upsample small targets, track the scale)."""
     reacquisition: ReacquisitionSettings = Field(default_factory=ReacquisitionSettings)
     motion_cue: MotionCueSettings = Field(default_factory=MotionCueSettings)
+    segment: SegmentRegistration = Field(default_factory=SegmentRegistration)
     stabilise: Literal["auto", "on", "off"] = "auto"
     """Estimate camera motion from the background when the source gives no homography (auto), always
     (on: replacing a source's homography; the world is then the first frame's pixels) or never (off: the
@@ -320,7 +371,8 @@ PRESETS: dict[ProfileName, dict] = {
     # target lengths (the world is then stabilised pixels, or target lengths; see
     # REAL_MOTION_NOISE_LENGTHS), with a jump component (REAL_JUMP_STD_LENGTHS); the per-frame
     # mechanisms (see the fields): template adaptation, matching at the target's scale (upsampling
-    # a small target, tracking its size), turning the particles with the camera, re-acquisition;
+    # a small target, tracking its size), turning the particles with the camera, re-acquisition,
+    # the template re-registered on the target's segment;
     # stabilisation is on by default ("auto") for any source without a homography.
     "real": {
         "rbpf": {"likelihood": {"kind": "beta_ratio", **SYNTHETIC_BETA}, "n_particles": REAL_PARTICLES,
@@ -334,6 +386,7 @@ PRESETS: dict[ProfileName, dict] = {
         "jump_std_lengths": REAL_JUMP_STD_LENGTHS,
         "reacquisition": {"enabled": True},
         "motion_cue": {"enabled": True},
+        "segment": {"enabled": True},
     },
 }
 """The named profiles: tracker settings (nested, as a run file's ``[settings]``) laid over Pang's

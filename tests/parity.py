@@ -1,19 +1,21 @@
 """Settings and helpers shared by the parity tests (in-process vs multi-process vs replay)."""
 
-from common.settings import MotionCueSettings, ScaleSettings, TemplateAdaptation, profile_for
+from common.settings import MotionCueSettings, ScaleSettings, SegmentRegistration, TemplateAdaptation, profile_for
 
 
 def parity_settings(src, seed=3):
     """Every per-frame mechanism on, on the synthetic scene: stabilised (replacing its homography),
     upsampled about 1.3x with the scale search, the template adapted on every confident frame, the
-    moving-target cue on the stabilised frames."""
+    moving-target cue on the stabilised frames, the template re-registered on the car's segment
+    every 0.2 s whatever its score."""
     box = src.frame(0).truth.box
     return profile_for(src, seed=seed, particles=100).model_copy(update={
         "stabilise": "on",
         "scale": ScaleSettings(mode="search", target_size_px=1.3 * max(box[2], box[3])),
         "adaptation": TemplateAdaptation(enabled=True, min_p_visible=0.5, min_score=0.3, interval_s=0.0),
         "compensate_camera_rotation": True,
-        "motion_cue": MotionCueSettings(enabled=True)})
+        "motion_cue": MotionCueSettings(enabled=True),
+        "segment": SegmentRegistration(enabled=True, interval_s=0.2, score_quantile=1.0)})
 
 
 def rewrite_mcap(src_path, dst_path, edit) -> None:

@@ -43,7 +43,8 @@ def test_queries_answered_by_the_detector_core_equal_in_process():
         assert same_estimate(estimate_msg(f.index, 0, a, "rbpf"), estimate_msg(f.index, 0, b, "rbpf")), f.index
     assert local.adaptations == remote.adaptations > 3 and local.scale.searches == remote.scale.searches > 0
     assert np.array_equal(local.template.pmatrix, remote.template.pmatrix)
-    assert local.factor != 1.0 and remote.detector.version == 1 + remote.adaptations
+    assert local.registrar.registrations == remote.registrar.registrations >= 1
+    assert local.factor != 1.0 and remote.detector.version == 1 + remote.adaptations + 2 * remote.registrar.registrations
     assert {(ScoreQuery.PEAK, False), (ScoreQuery.GRID, True), (ScoreQuery.AT, False)} <= {k[:2] for k in kinds}
 
 

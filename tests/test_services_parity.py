@@ -1,6 +1,7 @@
 """``polartrack run`` equals ``polartrack track`` with every per-frame mechanism of the Tracker on
 (stabilisation, matching upsampled at the target's scale with the scale search, template
-adaptation, the particles turned with the camera, the moving-target cue): the real services as separate processes on
+adaptation, the particles turned with the camera, the moving-target cue, the template
+re-registered on the target's segment): the real services as separate processes on
 a private loopback Zenoh network, compared estimate by estimate with the in-process Tracker,
 bit for bit; and ``replay --offline`` of that recording."""
 
@@ -49,6 +50,7 @@ def test_every_mechanism_is_exercised(parity_run):
     assert t.motion_cue is not None and t.motion_cue.frames_with_cue >= FRAMES - 3
     assert t.factor > 1.0 and t.scale.searches > 0
     assert t.adaptations > 5
+    assert t.registrar is not None and t.registrar.registrations >= 2
     rec = read_recording(r.mcap)
     queries = rec.decoded("detector/query")
     assert all(rep.status == ScoreReply.OK for rep in rec.decoded("detector/reply"))
@@ -57,10 +59,13 @@ def test_every_mechanism_is_exercised(parity_run):
     assert len(at) == FRAMES and all(q.factor > 1.0 for q in at) and at[-1].factor == t.factor
     assert sum(q.kind == ScoreQuery.PEAK for q in queries) >= t.adaptations
     assert sum(q.kind == ScoreQuery.GRID and q.one_off for q in queries) >= 3 * t.scale.searches
-    # the tracker service adapted as often as the in-process Tracker: each adapted template went out
-    # on the template key with the next version, and the queries asked for it
+    # the tracker service adapted and re-registered as often as the in-process Tracker: each adapted
+    # template went out on the template key with the next version; each re-registration is built by
+    # the detector (a TEMPLATE query: the next version) and turned by the tracker to the first
+    # template's orientation (the one after); the queries asked for them
+    assert sum(q.kind == ScoreQuery.TEMPLATE for q in queries) == 1 + t.registrar.registrations
     versions = [m.version for m in rec.decoded("template")]
-    assert versions == list(range(1, t.adaptations + 2))
+    assert versions == list(range(1, t.adaptations + 2 * t.registrar.registrations + 2))
     assert max(q.template_version for q in at) >= t.adaptations  # (the last frame's template is never used)
 
 

@@ -2,8 +2,8 @@
 
 :class:`Tracker` is the single-target tracker every way of running uses: the filter with its
 template and the per-frame mechanisms (stabilisation, matching at the target's scale, template
-adaptation, turning the particles with the camera, the moving-target cue), each switched in the
-settings. What needs
+adaptation, turning the particles with the camera, the moving-target cue, re-acquisition, the
+template re-registered on the target's segment), each switched in the settings. What needs
 the frame's pixels and the template goes through a detector client
 (:mod:`common.detector.client`): in-process here (``track_frames``), queries to the detector
 service in the tracker service, recorded replies on offline replay. The same source, seed and
@@ -17,14 +17,17 @@ from dataclasses import dataclass, replace
 from typing import Iterable, Iterator
 
 import numpy as np
+from scipy.stats import beta as beta_dist
 
 from common.single_target.adaptation import TemplateAdapter, registered_point
 from common.detector import Template
+from common.detector.template import rotate_pmatrix
 from common.detector.client import DetectorClient, LocalDetector
 from common.detector.layout import SUPPORT_RADIUS_PX
 from common.single_target.motion_cue import MotionCue
 from common.single_target.reacquire import Detection, Reacquirer
 from common.single_target.scale import ScaleTracker
+from common.single_target.segment import Registrar
 from common.settings import SYNTHETIC_BETA, TrackerSettings
 from common.sources import Frame
 from common.single_target.stabilise import CameraMotionEstimator, grey
@@ -105,6 +108,14 @@ def _background_beta(settings: TrackerSettings) -> tuple[float, float]:
     return (SYNTHETIC_BETA["a0"], SYNTHETIC_BETA["b0"])
 
 
+def _visible_beta(settings: TrackerSettings) -> tuple[float, float]:
+    """(a, b) of the likelihood's Beta for scores of a visible target (the synthetic fit by default)."""
+    lik = getattr(getattr(settings, settings.filter, None), "likelihood", None)
+    if isinstance(lik, BetaRatioLikelihood):
+        return (float(lik.a1), float(lik.b1))
+    return (SYNTHETIC_BETA["a1"], SYNTHETIC_BETA["b1"])
+
+
 def _interframe(h_prev: np.ndarray | None, h_cur: np.ndarray | None) -> np.ndarray | None:
     """The map from the previous frame's pixels to this frame's, from the two world -> image
     homographies (None: identity)."""
@@ -144,8 +155,8 @@ class Tracker:
     Per frame, before the filter step: the camera motion (stabiliser, for sources without a
     homography), the camera's rotation of the particles' orientation, the matching scale, the
     re-acquisition's search while the target is lost and the moving-target cue on the observation;
-    after it: the scale search, the lost state and the template adaptation (each switched in the
-    settings).
+    after it: the scale search, the lost state, the template adaptation and the template's
+    re-registration on the target's segment (each switched in the settings).
 
     A frame is anything with ``index``, ``time``, ``homography``, ``size`` and, when stabilising,
     ``image`` (:class:`common.sources.Frame`; :class:`common.msgs.convert.InfoFrame` on the bus).
@@ -161,6 +172,7 @@ class Tracker:
     adapter: TemplateAdapter | None = None
     reacquirer: Reacquirer | None = None
     motion_cue: MotionCue | None = None
+    registrar: Registrar | None = None
     last_state: TrackState | None = None
     homography: np.ndarray | None = None
     """World -> image homography of the latest frame stepped (None: identity)."""
@@ -207,6 +219,10 @@ class Tracker:
         tracker._box_size = (float(w), float(h))
         if settings.motion_cue.enabled and stab is not None:
             tracker.motion_cue = MotionCue(settings.motion_cue, (float(w), float(h)))
+        if settings.segment.enabled and stab is not None:
+            tracker.registrar = Registrar(settings.segment, settings.seed,
+                                          float(beta_dist.ppf(settings.segment.score_quantile, *_visible_beta(settings))))
+            tracker.registrar.start(np.asarray(first.image), first.index, first.time, init_box)
         if settings.reacquisition.enabled and hasattr(tracker.filter, "restart"):
             tracker.reacquirer = Reacquirer(settings.reacquisition, _background_beta(settings), first.size)
         return tracker
@@ -301,6 +317,7 @@ class Tracker:
         self._world_xy = image_to_world(self.homography, img)
         if not held_point:
             self._adapt(frame, state)
+            self._register(frame, state)
         if self.stabiliser is not None:
             self._prev_image = frame.image
         return state
@@ -400,6 +417,40 @@ class Tracker:
         ok = np.all(np.isfinite(new), axis=1) & np.all(np.isfinite(vel), axis=1)
         p[ok, 0], p[ok, 2] = new[ok, 0], new[ok, 1]
         p[ok, 1], p[ok, 3] = vel[ok, 0], vel[ok, 1]
+
+    def _register(self, frame: Frame, state: TrackState) -> None:
+        """Every ``segment.interval_s`` while held: the template built again at the target's segment
+        (:mod:`common.single_target.segment`) and turned back by the MAP's orientation to the first
+        template's (the particles' angles are relative to it), the scale set from the segment's
+        length, the adaptation started again from the new template."""
+        r = self.registrar
+        if r is None or frame.image is None or not r.due(frame.time, state.p_visible, state.score):
+            return
+        m = state.map_estimate
+        t0 = time.perf_counter()
+        try:
+            found = r.measure(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y), m.theta,
+                              state.size, self.scale.target_length_px, self.scale.s)
+        finally:
+            r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
+        if found is None:
+            return
+        (x, y), s = found
+        s = float(np.clip(s, *self.scale.scale_range()))
+        k = self.scale.factor(s)
+        bw, bh = self._box_size[0] * s, self._box_size[1] * s
+        try:
+            built = self.detector.build_template(frame, (x, y), (x - bw / 2, y - bh / 2, bw, bh), k)
+        except (ValueError, InitError, ObservationUnavailable):
+            return  # its footprint is not whole in the frame, or the detector did not answer: kept as it is
+        template = Template(pmatrix=rotate_pmatrix(built.pmatrix, -m.theta), centre=built.centre, box=built.box)
+        self.detector.use_template(template)
+        self.scale.restart(s)
+        self.factor = self.scale.factor()
+        self.template = template
+        ad = self.settings.adaptation
+        if ad.enabled:
+            self.adapter = TemplateAdapter(template, ad.rate, ad.anchor)
 
     def _adapt(self, frame: Frame, state: TrackState) -> None:
         ad = self.settings.adaptation

@@ -92,9 +92,9 @@ class ScaleTracker:
         s = self.s if s is None else s
         return float(np.clip(self.u / s, self.cfg.min_factor, max(self.cfg.max_upsample, 1.0)))
 
-    def factor(self) -> float:
-        """k_t, quantised (1.0 exactly when no resampling is needed)."""
-        return quantise_factor(self.raw_factor(), self.cfg.steps_per_octave)
+    def factor(self, s: float | None = None) -> float:
+        """k_t (at scale ``s``, default s_t), quantised (1.0 exactly when no resampling is needed)."""
+        return quantise_factor(self.raw_factor(s), self.cfg.steps_per_octave)
 
     @property
     def target_length_px(self) -> float:

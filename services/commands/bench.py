@@ -364,7 +364,8 @@ def steady_cpu(status_log) -> dict[str, tuple[float, float | None]]:
 def measure_tracker(spec: str, seed: int = 0) -> dict:
     """The real-footage profile in-process on ``spec``, one thread: frames per second of tracking
     (the source's own reading and decoding excluded), ms per frame while held and while lost, and
-    the re-acquisition search's share; beside the same frames with re-acquisition off."""
+    the re-acquisition search's share and the segmentation's; beside the same frames with
+    re-acquisition off."""
     import cv2
     from threadpoolctl import threadpool_limits
 
@@ -393,6 +394,9 @@ def measure_tracker(spec: str, seed: int = 0) -> dict:
              "searching_ms_p50": round(1e3 * float(np.median(lost)), 2) if lost else None}
         if tracker.reacquirer is not None:
             r["reacquisition"] = tracker.reacquirer.stats()
+        if tracker.registrar is not None:  # the re-registration's GrabCut, and its share of every frame
+            r["segment"] = {**tracker.registrar.stats(),
+                            "ms_per_frame": round(1e3 * tracker.registrar.seconds / len(frames), 2)}
         out[name] = r
     out["fps_ratio_on_off"] = round(out["reacquisition_on"]["fps"] / out["reacquisition_off"]["fps"], 3)
     # above 1: the tracker keeps up with the source's own frame rate (real time) with re-acquisition on

@@ -1,0 +1,154 @@
+"""The target's segmentation (common/single_target/segment.py): the segment's centre, length and
+shape on drawn vehicles against known answers, the guards that reject what is not one, and the
+scale a registrar derives from it."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from common.settings import SegmentRegistration, profile_for
+from common.single_target.runner import Tracker
+from common.single_target.segment import Registrar, segment_target
+from common.sources import open_source
+
+CFG = SegmentRegistration(enabled=True)
+
+
+def road(h=360, w=480, seed=0):
+    """A grey road with mild texture."""
+    rng = np.random.default_rng(seed)
+    img = np.full((h, w, 3), 110, np.float64) + rng.normal(0, 6, (h, w, 1)) + rng.normal(0, 2, (h, w, 3))
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def draw_car(img, centre, length, width, angle_deg, colour=(200, 30, 30)):
+    pts = cv2.boxPoints(((float(centre[0]), float(centre[1])), (float(length), float(width)), float(angle_deg)))
+    cv2.fillPoly(img, [np.round(pts).astype(np.int32)], colour, lineType=cv2.LINE_8)
+    return img
+
+
+def test_segment_of_a_turned_car_gives_its_centre_and_length():
+    img = draw_car(road(), (240, 180), 60, 28, 25)
+    seg = segment_target(img, (252, 172), 60, CFG, seed=1, box_area_px=60 * 28)  # looked for 0.24 lengths off
+    assert seg is not None
+    assert math.hypot(seg.x - 240, seg.y - 180) < 1.5
+    assert abs(seg.length_px - 60) < 4
+    assert abs(seg.area_px - 60 * 28) < 0.15 * 60 * 28  # worked at about half size: a boundary pixel is 4
+    assert seg.solidity > 0.9
+
+
+def test_the_same_seed_gives_the_same_segment():
+    img = draw_car(road(seed=3), (200, 150), 50, 22, -40)
+    a = segment_target(img, (190, 160), 50, CFG, seed=11)
+    b = segment_target(img, (190, 160), 50, CFG, seed=11)
+    assert a == b
+
+
+def test_a_ragged_segment_is_not_taken_for_a_vehicle():
+    """Negative control: a C-shaped patch of the same colour and size (a part of something with road
+    showing through) fills well under pi/4 of its rectangle: no segment with the shape guard on."""
+    img = road()
+    draw_car(img, (240, 180), 60, 40, 0)
+    img[168:192, 222:271] = road()[168:192, 222:271]  # the middle cut out, open to the right
+    seg = segment_target(img, (240, 180), 60, CFG, seed=1)
+    assert seg is not None and seg.solidity < CFG.min_solidity  # found, but ragged
+    assert segment_target(img, (240, 180), 60, CFG, seed=1, box_area_px=60 * 40) is None
+
+
+def test_a_segment_far_smaller_than_the_box_is_refused():
+    img = draw_car(road(), (240, 180), 20, 10, 0)
+    assert segment_target(img, (240, 180), 60, CFG, seed=1) is not None
+    # the track's box 60 x 40: the 20 x 10 blob is a twelfth of it, under area_range's fifth
+    assert segment_target(img, (240, 180), 60, CFG, seed=1, box_area_px=60 * 40) is None
+
+
+def test_nothing_to_separate_gives_no_segment():
+    flat = np.full((200, 200, 3), 90, np.uint8)
+    assert segment_target(flat, (100, 100), 40, CFG, seed=0, box_area_px=40 * 20) is None
+    assert segment_target(road(), (5, 5), 4, CFG, seed=0) is None  # a crop too small to work on
+
+
+def test_registrar_scale_from_a_loose_first_box():
+    """The first box twice the car's length: the segment's length is half the box's (the ratio),
+    so when the car is 1.5 times longer the scale read from its segment is 1.5, whatever the
+    track's scale was."""
+    first = draw_car(road(), (240, 180), 40, 18, 10)
+    r = Registrar(CFG, seed=5, max_score=0.69)
+    r.start(first, 0, 0.0, (200, 160, 80, 40))  # the box 80 x 40 about a 40 x 18 car
+    assert r.ratio == pytest.approx(0.5, abs=0.06)
+    later = draw_car(road(seed=1), (250, 170), 60, 27, 30)
+    assert not r.due(0.5, 1.0, 0.5)  # one interval after the start
+    assert not r.due(1.0, 0.2, 0.5)  # not while the target is not held
+    assert not r.due(1.0, 1.0, 0.8)  # not while the template matches well
+    assert not r.due(1.0, 1.0, None)
+    assert r.due(1.0, 1.0, 0.5)
+    # the track at scale 1 (its box 80 x 40, its length 80 px), looking 10 px off the car
+    (x, y), s = r.measure(later, 10, 1.0, (260, 172), 20.0, (80, 40), 80.0, 1.0)
+    assert math.hypot(x - 250, y - 170) < 1.5
+    assert s == pytest.approx(1.5, rel=0.1)
+    assert not r.due(1.5, 1.0, 0.5) and r.registrations == 1 and r.attempts == 1
+    # a track at 0.6: the same answer
+    (x, y), s = r.measure(later, 20, 2.0, (252, 170), 20.0, (48, 24), 48.0, 0.6)
+    assert math.hypot(x - 250, y - 170) < 1.5 and s == pytest.approx(1.5, rel=0.1)
+    # no car where the track looks (the square holds road only): no segment, an attempt all the same
+    assert r.measure(road(seed=2), 30, 3.0, (250, 170), 20.0, (80, 40), 80.0, 1.0) is None
+    assert r.attempts == 3 and r.registrations == 2
+
+
+def test_the_first_frames_offset_is_kept_turned_with_the_track():
+    """A first box centred a quarter of the car's length ahead of it (as a first box may be): the
+    segment's centre lies a quarter length behind the box's; the registration puts the track where
+    the box was, also once the car has turned by 90 degrees (the offset turned with it)."""
+    first = draw_car(road(), (240, 180), 48, 22, 0)  # the long axis along x
+    r = Registrar(CFG, seed=2)
+    r.start(first, 0, 0.0, (228, 160, 48, 40))  # the box's centre (252, 180): 12 px ahead
+    assert r.offset[0] == pytest.approx(-0.25, abs=0.03) and abs(r.offset[1]) < 0.03
+    turned = draw_car(road(seed=4), (200, 150), 48, 22, 90)  # the long axis along y
+    # the track turned by 90 degrees anticlockwise as displayed: "ahead" is now up (-y)
+    (x, y), s = r.measure(turned, 10, 1.0, (200, 140), 90.0, (48, 40), 48.0, 1.0)
+    assert math.hypot(x - 200, y - 138) < 1.5 and s == pytest.approx(1.0, rel=0.1)
+    # negative control: the offset not turned (the track's angle taken as 0) puts it to the side
+    (x, y), _ = r.measure(turned, 20, 2.0, (200, 140), 0.0, (48, 40), 48.0, 1.0)
+    assert math.hypot(x - 212, y - 150) < 1.5
+
+
+def test_no_calibration_no_registration():
+    """A first box on plain road (no vehicle to segment) leaves the registrar off for the run."""
+    r = Registrar(CFG, seed=0)
+    r.start(np.full((200, 200, 3), 90, np.uint8), 0, 0.0, (80, 80, 40, 20))
+    assert r.ratio is None and not r.due(10.0, 1.0, 0.5)
+
+
+def test_the_tracker_re_registers_a_template_drifted_off_the_target():
+    """The synthetic car tracked from its true box; on the third frame its template is replaced by
+    one taken a third of a length to the car's right (as the adaptation's drift leaves it). Without
+    the registration the track keeps the offset (negative control); with it the offset is gone
+    after the first segment (the template built again where the first box's relation to its
+    segment puts the car)."""
+    src = open_source("synthetic:3", n_frames=45)
+    frames = list(src)
+    box = frames[0].truth.box
+    shift = max(box[2:]) / 3
+
+    def errors(enabled):
+        st = profile_for(src, seed=0, preset="real").model_copy(update={
+            "stabilise": "on", "segment": SegmentRegistration(enabled=enabled, interval_s=0.5)})
+        t = Tracker.start(frames[0], box, st)
+        out = []
+        for f in frames:
+            m = t.step(f).map_estimate
+            if f.index == 2:  # the drifted template
+                x, y, w, h = f.truth.box
+                t.template = t.detector.build_template(f, (x + w / 2 + shift, y + h / 2), (x + shift, y, w, h),
+                                                       t.factor)
+                t.adapter = type(t.adapter)(t.template, t.adapter.rate, t.adapter.anchor)
+            out.append(math.hypot(m.image_x - f.truth.centre[0], m.image_y - f.truth.centre[1]))
+        return t, np.asarray(out)
+
+    t_on, on = errors(True)
+    t_off, off = errors(False)
+    assert t_on.registrar.registrations >= 1 and t_off.registrar is None
+    assert np.median(off[-10:]) > 0.6 * shift  # negative control: the offset stays
+    assert np.median(on[-10:]) < 0.1 * shift  # measured 16.6 px -> 0.3 px
