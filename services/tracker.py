@@ -236,9 +236,12 @@ class DetectorLink:
             return None  # detector down: no observation now, not after a timeout
         payload = q.SerializeToString()
         att = ns_attachment(time.time_ns())  # the sender's id: the detector answers the run's tracker only
+        # the first template waits for a detector that is still starting; a later one (the template
+        # re-registered on the target's segment) is a frame's query like the others
+        first = q.kind == ScoreQuery.TEMPLATE and not self.template_bytes
         replies = (self.session.get(self.bus.key("detector/score"), payload=payload,
                                     timeout=self.cfg.template_timeout_s, attachment=att, **query_options())
-                   if q.kind == ScoreQuery.TEMPLATE else self.querier.get(payload=payload, attachment=att))
+                   if first else self.querier.get(payload=payload, attachment=att))
         return self.picker.first(replies, q)
 
     def ask(self, q: ScoreQuery) -> ScoreReply | None:

@@ -13,6 +13,7 @@ from common.single_target.runner import Tracker
 from common.sources import open_source
 from parity import parity_settings
 from common.detector.server import DetectorCore
+from common.tracking.observation import ObservationUnavailable
 
 FRAMES = 12
 
@@ -155,3 +156,35 @@ def test_crop_box_is_clipped_to_the_frame_joined_with_the_hypotheses_and_capped(
     need = (2.0 * side + 2 * CROP_MARGIN_PX) ** 2
     assert crop_box((0.0, 0.0, 1.0, 1.0), (0.0, 0.0, side, side), 2.0, size, max_crop_px=need) is not None
     assert crop_box((0.0, 0.0, 1.0, 1.0), (0.0, 0.0, side, side), 2.0, size, max_crop_px=need - 1) is None
+
+
+def test_a_template_whose_reply_was_lost_does_not_take_the_next_version():
+    """A mid-run TEMPLATE query the detector answers but whose reply never reaches the tracker: the
+    detector installed the built template as the next version; the tracker skips that number, so
+    the template it publishes next is installed as a version of its own, not dropped as one the
+    detector holds (and the queries for it are scored with it, not with the lost build)."""
+    src = open_source("synthetic:3", n_frames=2)
+    f = src.frame(0)
+    core = DetectorCore()
+    core.add_frame(f.index, f.image, f.time)
+    lose = {"template": False}
+
+    def ask(q):
+        rep = core.handle(ScoreQuery.FromString(q.SerializeToString()))[0]
+        return None if (lose["template"] and q.kind == ScoreQuery.TEMPLATE) else rep
+
+    def publish(template, version):
+        if version not in core.templates:  # as the detector service installs a published template
+            core.install_template(version, msg_to_template(template_to_msg(template, version, 0)))
+
+    remote = QueryDetector(ask, "t", publish)
+    x, y, w, h = f.truth.box
+    first = remote.build_template(f, (x + w / 2, y + h / 2), f.truth.box, 1.0)
+    assert remote.version == 1
+    lose["template"] = True
+    with pytest.raises(ObservationUnavailable):
+        remote.build_template(f, (x + w / 2 + 3, y + h / 2), f.truth.box, 1.0)
+    assert 2 in core.templates  # built and installed on the detector's side all the same
+    remote.use_template(first)
+    assert remote.version == 3 and 3 in core.templates
+    assert np.array_equal(core.templates[3].template.pmatrix, first.pmatrix)

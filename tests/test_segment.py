@@ -67,7 +67,9 @@ def test_a_segment_far_smaller_than_the_box_is_refused():
 def test_nothing_to_separate_gives_no_segment():
     flat = np.full((200, 200, 3), 90, np.uint8)
     assert segment_target(flat, (100, 100), 40, CFG, seed=0, box_area_px=40 * 20) is None
-    assert segment_target(road(), (5, 5), 4, CFG, seed=0) is None  # a crop too small to work on
+    assert segment_target(road(), (5, 5), 4, CFG, seed=0) is None  # a square beyond the frame's edge
+    assert segment_target(road(), (float("nan"), 100), 40, CFG, seed=0) is None
+    assert segment_target(road(), (100, 100), float("nan"), CFG, seed=0) is None
 
 
 def test_registrar_scale_from_a_loose_first_box():

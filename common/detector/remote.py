@@ -90,7 +90,14 @@ class QueryDetector:
 
     def build_template(self, frame, centre, box, k: float) -> Template:
         row = np.array([[float(centre[0]), float(centre[1]), *(float(v) for v in box)]])
-        rep = self.query(frame, ScoreQuery.TEMPLATE, row, k)
+        try:
+            rep = self.query(frame, ScoreQuery.TEMPLATE, row, k)
+        except ObservationUnavailable:
+            # the detector may have built and installed it as the next version all the same (a reply
+            # lost or late): that number is skipped, so that the next template published does not
+            # reuse it and get dropped as one the detector already holds
+            self.version += 1
+            raise
         try:
             template = msg_to_template(rep.template)
         except ValueError as exc:

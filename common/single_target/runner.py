@@ -426,6 +426,8 @@ class Tracker:
         r = self.registrar
         if r is None or frame.image is None or not r.due(frame.time, state.p_visible, state.score):
             return
+        if frame.time - self._restart_time < self.settings.adaptation.hold_after_restart_s - 1e-9:
+            return  # a re-acquisition's restart: the cloud has not settled (as for the adaptation)
         m = state.map_estimate
         t0 = time.perf_counter()
         try:
@@ -436,6 +438,8 @@ class Tracker:
         if found is None:
             return
         (x, y), s = found
+        if self.scale.mode != "search":
+            s = self.scale.s  # the scale is the source's homography's, or fixed: re-centred only
         s = float(np.clip(s, *self.scale.scale_range()))
         k = self.scale.factor(s)
         bw, bh = self._box_size[0] * s, self._box_size[1] * s
@@ -445,8 +449,9 @@ class Tracker:
             return  # its footprint is not whole in the frame, or the detector did not answer: kept as it is
         template = Template(pmatrix=rotate_pmatrix(built.pmatrix, -m.theta), centre=built.centre, box=built.box)
         self.detector.use_template(template)
-        self.scale.restart(s)
-        self.factor = self.scale.factor()
+        if self.scale.mode == "search":
+            self.scale.restart(s)
+            self.factor = self.scale.factor()
         self.template = template
         ad = self.settings.adaptation
         if ad.enabled:

@@ -58,12 +58,12 @@ def segment_target(image: np.ndarray, centre: tuple[float, float], length_px: fl
     or its solidity under ``cfg.min_solidity``."""
     h, w = image.shape[:2]
     cx, cy = float(centre[0]), float(centre[1])
+    if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(length_px) and length_px > 0):
+        return None
     inner = cfg.reach_lengths * length_px
     outer = inner + cfg.margin_lengths * length_px
     x0, y0 = int(max(0.0, math.floor(cx - outer))), int(max(0.0, math.floor(cy - outer)))
     x1, y1 = int(min(w, math.ceil(cx + outer))), int(min(h, math.ceil(cy + outer)))
-    if not (np.isfinite(cx) and np.isfinite(cy) and length_px > 0):
-        return None
     if cx - inner < 0 or cy - inner < 0 or cx + inner > w or cy + inner > h or x1 - x0 < 16 or y1 - y0 < 16:
         return None
     f = min(1.0, cfg.work_px / max(x1 - x0, y1 - y0))
