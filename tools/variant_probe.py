@@ -27,6 +27,9 @@ oracle patched in:
 - ``--segment-recentre N``: not a bound: every N frames while held, a new template at the centre
   of a GrabCut segment of the target about the estimate (no ground truth), the template's
   registration taken from the target's extent.
+  With ``--segment-solidity F`` the segment must fill F of its minimum-area rectangle; with
+  ``--segment-rescale`` the scale is set from its length (calibrated on the first box's segment):
+  the probes before the product's ``segment`` settings (stop 35).
 - ``--oracle-template-every N``: a bound too: every N frames a new template built at the truth's
   box (the filter, the scale and the search left alone): what a recent view kept registered on the
   target would be worth.
