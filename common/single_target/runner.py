@@ -100,20 +100,13 @@ def make_filter(settings: TrackerSettings, init_box: tuple[float, float, float, 
     return WindowedML(settings.ml, initial)
 
 
-def _background_beta(settings: TrackerSettings) -> tuple[float, float]:
-    """(a, b) of the likelihood's Beta for scores where there is no target (the synthetic fit by default)."""
+def _likelihood_beta(settings: TrackerSettings, visible: bool) -> tuple[float, float]:
+    """(a, b) of the likelihood's Beta for the scores of a visible target (``visible``) or of the
+    background (the synthetic fit by default)."""
     lik = getattr(getattr(settings, settings.filter, None), "likelihood", None)
     if isinstance(lik, BetaRatioLikelihood):
-        return (float(lik.a0), float(lik.b0))
-    return (SYNTHETIC_BETA["a0"], SYNTHETIC_BETA["b0"])
-
-
-def _visible_beta(settings: TrackerSettings) -> tuple[float, float]:
-    """(a, b) of the likelihood's Beta for scores of a visible target (the synthetic fit by default)."""
-    lik = getattr(getattr(settings, settings.filter, None), "likelihood", None)
-    if isinstance(lik, BetaRatioLikelihood):
-        return (float(lik.a1), float(lik.b1))
-    return (SYNTHETIC_BETA["a1"], SYNTHETIC_BETA["b1"])
+        return (float(lik.a1), float(lik.b1)) if visible else (float(lik.a0), float(lik.b0))
+    return (SYNTHETIC_BETA["a1"], SYNTHETIC_BETA["b1"]) if visible else (SYNTHETIC_BETA["a0"], SYNTHETIC_BETA["b0"])
 
 
 def _interframe(h_prev: np.ndarray | None, h_cur: np.ndarray | None) -> np.ndarray | None:
@@ -220,11 +213,11 @@ class Tracker:
         if settings.motion_cue.enabled and stab is not None:
             tracker.motion_cue = MotionCue(settings.motion_cue, (float(w), float(h)))
         if settings.segment.enabled and stab is not None:
-            tracker.registrar = Registrar(settings.segment, settings.seed,
-                                          float(beta_dist.ppf(settings.segment.score_quantile, *_visible_beta(settings))))
+            max_score = float(beta_dist.ppf(settings.segment.score_quantile, *_likelihood_beta(settings, True)))
+            tracker.registrar = Registrar(settings.segment, settings.seed, max_score)
             tracker.registrar.start(np.asarray(first.image), first.index, first.time, init_box)
         if settings.reacquisition.enabled and hasattr(tracker.filter, "restart"):
-            tracker.reacquirer = Reacquirer(settings.reacquisition, _background_beta(settings), first.size)
+            tracker.reacquirer = Reacquirer(settings.reacquisition, _likelihood_beta(settings, False), first.size)
         return tracker
 
     def observation(self, frame: Frame, homography=_SOURCE, factor: float | None = None):
@@ -418,6 +411,12 @@ class Tracker:
         p[ok, 0], p[ok, 2] = new[ok, 0], new[ok, 1]
         p[ok, 1], p[ok, 3] = vel[ok, 0], vel[ok, 1]
 
+    def _settled(self, time_s: float) -> bool:
+        """Whether ``adaptation.hold_after_restart_s`` has passed since a re-acquisition's restart:
+        until then the cloud has not settled on the target, and neither the adaptation nor the
+        registration takes the template from where it is."""
+        return time_s - self._restart_time >= self.settings.adaptation.hold_after_restart_s - 1e-9
+
     def _register(self, frame: Frame, state: TrackState) -> None:
         """Every ``segment.interval_s`` while held: the template built again at the target's segment
         (:mod:`common.single_target.segment`) and turned back by the MAP's orientation to the first
@@ -426,8 +425,8 @@ class Tracker:
         r = self.registrar
         if r is None or frame.image is None or not r.due(frame.time, state.p_visible, state.score):
             return
-        if frame.time - self._restart_time < self.settings.adaptation.hold_after_restart_s - 1e-9:
-            return  # a re-acquisition's restart: the cloud has not settled (as for the adaptation)
+        if not self._settled(frame.time):
+            return
         m = state.map_estimate
         t0 = time.perf_counter()
         try:
@@ -465,8 +464,8 @@ class Tracker:
             return
         if frame.time - self._last_adapt_time < ad.interval_s - 1e-9:
             return
-        if frame.time - self._restart_time < ad.hold_after_restart_s - 1e-9:
-            return  # the cloud has not settled since a re-acquisition's restart
+        if not self._settled(frame.time):
+            return
         # sample at the frame's matching scale, where the template registers the target near the
         # MAP, turned back by the refined angle there
         obs = self._obs

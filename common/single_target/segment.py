@@ -54,8 +54,9 @@ def segment_target(image: np.ndarray, centre: tuple[float, float], length_px: fl
     """The target's segment about ``centre`` on ``image`` (RGB, uint8): GrabCut's largest foreground
     component in the square ``cfg.reach_lengths`` target lengths either side, the crop a further
     ``cfg.margin_lengths`` wide worked at ``cfg.work_px``; None where the square is not wholly inside
-    the frame (a target cut by the frame's edge: its segment is a part of it), nothing is segmented, or (``box_area_px`` given) the component's area is outside ``cfg.area_range`` of it
-    or its solidity under ``cfg.min_solidity``."""
+    the frame (a target cut by the frame's edge: its segment is a part of it), nothing is segmented,
+    or (``box_area_px`` given) the component's area is outside ``cfg.area_range`` of it or its
+    solidity under ``cfg.min_solidity``."""
     h, w = image.shape[:2]
     cx, cy = float(centre[0]), float(centre[1])
     if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(length_px) and length_px > 0):
@@ -101,8 +102,8 @@ def segment_target(image: np.ndarray, centre: tuple[float, float], length_px: fl
 
 
 class Registrar:
-    """When to segment, and what a segment says: ``start`` on the first frame's box, then
-    ``measure`` on each held frame (``None`` when not due or nothing plausible)."""
+    """When to segment, and what a segment says: ``start`` on the first frame's box, then, on a
+    frame where ``due``, ``measure`` (None where nothing plausible is found)."""
 
     def __init__(self, cfg, seed: int, max_score: float = 1.0):
         self.cfg = cfg
