@@ -71,9 +71,9 @@ class SegmentRegistration(BaseModel):
     the anchor to the original bounds the drift but not the offset. Every ``interval_s`` while the
     target is held but matched poorly, GrabCut segments it in a square about the estimate (the colour of what is
     inside against what is around it: independent of the template); where the segment is shaped
-    like a vehicle, the template is built again where the segment puts the target and the matching
-    scale set from the segment's length, in the relation the first box's own segment had to the
-    first box."""
+    like a vehicle, the template is built again at the segment's centre and the matching scale set
+    from the segment's length, in the relation the first box's own segment had to the first box's
+    length."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
 

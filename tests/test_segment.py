@@ -87,33 +87,31 @@ def test_registrar_scale_from_a_loose_first_box():
     assert not r.due(1.0, 1.0, None)
     assert r.due(1.0, 1.0, 0.5)
     # the track at scale 1 (its box 80 x 40, its length 80 px), looking 10 px off the car
-    (x, y), s = r.measure(later, 10, 1.0, (260, 172), 20.0, (80, 40), 80.0, 1.0)
+    (x, y), s = r.measure(later, 10, 1.0, (260, 172), (80, 40), 80.0, 1.0)
     assert math.hypot(x - 250, y - 170) < 1.5
     assert s == pytest.approx(1.5, rel=0.1)
     assert not r.due(1.5, 1.0, 0.5) and r.registrations == 1 and r.attempts == 1
     # a track at 0.6: the same answer
-    (x, y), s = r.measure(later, 20, 2.0, (252, 170), 20.0, (48, 24), 48.0, 0.6)
+    (x, y), s = r.measure(later, 20, 2.0, (252, 170), (48, 24), 48.0, 0.6)
     assert math.hypot(x - 250, y - 170) < 1.5 and s == pytest.approx(1.5, rel=0.1)
     # no car where the track looks (the square holds road only): no segment, an attempt all the same
-    assert r.measure(road(seed=2), 30, 3.0, (250, 170), 20.0, (80, 40), 80.0, 1.0) is None
+    assert r.measure(road(seed=2), 30, 3.0, (250, 170), (80, 40), 80.0, 1.0) is None
     assert r.attempts == 3 and r.registrations == 2
 
 
-def test_the_first_frames_offset_is_kept_turned_with_the_track():
+def test_an_off_centre_first_box_is_not_carried_over():
     """A first box centred a quarter of the car's length ahead of it (as a first box may be): the
-    segment's centre lies a quarter length behind the box's; the registration puts the track where
-    the box was, also once the car has turned by 90 degrees (the offset turned with it)."""
+    registration puts the track at the car's segment's centre, not a quarter length ahead of it,
+    whether or not the car has turned since (the box's offset was its drawer's, not the car's)."""
     first = draw_car(road(), (240, 180), 48, 22, 0)  # the long axis along x
     r = Registrar(CFG, seed=2)
     r.start(first, 0, 0.0, (228, 160, 48, 40))  # the box's centre (252, 180): 12 px ahead
-    assert r.offset[0] == pytest.approx(-0.25, abs=0.03) and abs(r.offset[1]) < 0.03
+    assert r.ratio == pytest.approx(1.0, abs=0.1)
     turned = draw_car(road(seed=4), (200, 150), 48, 22, 90)  # the long axis along y
-    # the track turned by 90 degrees anticlockwise as displayed: "ahead" is now up (-y)
-    (x, y), s = r.measure(turned, 10, 1.0, (200, 140), 90.0, (48, 40), 48.0, 1.0)
-    assert math.hypot(x - 200, y - 138) < 1.5 and s == pytest.approx(1.0, rel=0.1)
-    # negative control: the offset not turned (the track's angle taken as 0) puts it to the side
-    (x, y), _ = r.measure(turned, 20, 2.0, (200, 140), 0.0, (48, 40), 48.0, 1.0)
-    assert math.hypot(x - 212, y - 150) < 1.5
+    (x, y), s = r.measure(turned, 10, 1.0, (200, 140), (48, 40), 48.0, 1.0)
+    assert math.hypot(x - 200, y - 150) < 1.5 and s == pytest.approx(1.0, rel=0.1)
+    (x, y), _ = r.measure(first, 20, 2.0, (250, 178), (48, 40), 48.0, 1.0)
+    assert math.hypot(x - 240, y - 180) < 1.5  # not (252, 180), where the first box was centred
 
 
 def test_no_calibration_no_registration():
@@ -127,8 +125,7 @@ def test_the_tracker_re_registers_a_template_drifted_off_the_target():
     """The synthetic car tracked from its true box; on the third frame its template is replaced by
     one taken a third of a length to the car's right (as the adaptation's drift leaves it). Without
     the registration the track keeps the offset (negative control); with it the offset is gone
-    after the first segment (the template built again where the first box's relation to its
-    segment puts the car)."""
+    after the first segment (the template built again at the car's segment's centre)."""
     src = open_source("synthetic:3", n_frames=45)
     frames = list(src)
     box = frames[0].truth.box

@@ -430,7 +430,7 @@ class Tracker:
         m = state.map_estimate
         t0 = time.perf_counter()
         try:
-            found = r.measure(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y), m.theta,
+            found = r.measure(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y),
                               state.size, self.scale.target_length_px, self.scale.s)
         finally:
             r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
