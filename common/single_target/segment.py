@@ -15,11 +15,9 @@ The segment's centre is taken as the target's centre, and its length, in the rel
 box's own segment had to the box (``Registrar.start``: a loose first box, a segment less than one
 box long), as the target's length. The first box's centre is not carried over as an offset from
 its segment: on real footage that offset is a few pixels of shadow, of the side an oblique camera
-sees, and of the box's rounding, fixed in the image rather than turning with the target, and it
-does not grow with the target (uav123-car16: 2.3 px below the segment's centre on the first
-22 px box, 1.7 px at 39 px, 4.5 px at 167 px, the car turned by half a turn between them); carried
-in target lengths and turned by the track's angle it put the registration 20 px off
-(docs/real-footage.md, stop 36). Nothing here needs the ground truth.
+sees and of the box's rounding, fixed in the image rather than turning with the target and not
+growing with it, so carried in target lengths and turned by the track's angle it moves the
+registration off the target (docs/real-footage.md, stop 36). Nothing here needs the ground truth.
 
 GrabCut initialises its colour models with k-means, which draws from OpenCV's random generator;
 it is seeded before every call from the run's seed and the frame's index, so the same frame gives
