@@ -87,15 +87,15 @@ def test_registrar_scale_from_a_loose_first_box():
     assert not r.due(1.0, 1.0, None)
     assert r.due(1.0, 1.0, 0.5)
     # the track at scale 1 (its box 80 x 40, its length 80 px), looking 10 px off the car
-    (x, y), s = r.measure(later, 10, 1.0, (260, 172), (80, 40), 80.0, 1.0)
+    (x, y), s = r.measure(later, 10, 1.0, (260, 172), (80, 40), 80.0)
     assert math.hypot(x - 250, y - 170) < 1.5
     assert s == pytest.approx(1.5, rel=0.1)
     assert not r.due(1.5, 1.0, 0.5) and r.registrations == 1 and r.attempts == 1
     # a track at 0.6: the same answer
-    (x, y), s = r.measure(later, 20, 2.0, (252, 170), (48, 24), 48.0, 0.6)
+    (x, y), s = r.measure(later, 20, 2.0, (252, 170), (48, 24), 48.0)
     assert math.hypot(x - 250, y - 170) < 1.5 and s == pytest.approx(1.5, rel=0.1)
     # no car where the track looks (the square holds road only): no segment, an attempt all the same
-    assert r.measure(road(seed=2), 30, 3.0, (250, 170), (80, 40), 80.0, 1.0) is None
+    assert r.measure(road(seed=2), 30, 3.0, (250, 170), (80, 40), 80.0) is None
     assert r.attempts == 3 and r.registrations == 2
 
 
@@ -108,9 +108,9 @@ def test_an_off_centre_first_box_is_not_carried_over():
     r.start(first, 0, 0.0, (228, 160, 48, 40))  # the box's centre (252, 180): 12 px ahead
     assert r.ratio == pytest.approx(1.0, abs=0.1)
     turned = draw_car(road(seed=4), (200, 150), 48, 22, 90)  # the long axis along y
-    (x, y), s = r.measure(turned, 10, 1.0, (200, 140), (48, 40), 48.0, 1.0)
+    (x, y), s = r.measure(turned, 10, 1.0, (200, 140), (48, 40), 48.0)
     assert math.hypot(x - 200, y - 150) < 1.5 and s == pytest.approx(1.0, rel=0.1)
-    (x, y), _ = r.measure(first, 20, 2.0, (250, 178), (48, 40), 48.0, 1.0)
+    (x, y), _ = r.measure(first, 20, 2.0, (250, 178), (48, 40), 48.0)
     assert math.hypot(x - 240, y - 180) < 1.5  # not (252, 180), where the first box was centred
 
 

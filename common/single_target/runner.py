@@ -431,7 +431,7 @@ class Tracker:
         t0 = time.perf_counter()
         try:
             found = r.measure(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y),
-                              state.size, self.scale.target_length_px, self.scale.s)
+                              state.size, self.scale.target_length_px)
         finally:
             r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
         if found is None:

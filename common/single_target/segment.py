@@ -114,6 +114,8 @@ class Registrar:
         self.ratio: float | None = None
         """The first box's segment's length over the box's long side (None: the target did not
         segment on the first frame, and is not re-registered)."""
+        self.first_length_px: float | None = None
+        """That segment's length: the length of a segment at scale 1."""
         self._last_time = -math.inf
         self.attempts = 0
         self.registrations = 0
@@ -129,6 +131,7 @@ class Registrar:
         x, y, w, h = (float(v) for v in box)
         seg = segment_target(image, (x + w / 2, y + h / 2), max(w, h), self.cfg, self._seed(frame_index), w * h)
         self.ratio = None if seg is None else seg.length_px / max(w, h)
+        self.first_length_px = None if seg is None else seg.length_px
         self._last_time = time_s
 
     def due(self, time_s: float, p_visible: float, score: float | None) -> bool:
@@ -137,12 +140,11 @@ class Registrar:
                 and time_s - self._last_time >= self.cfg.interval_s - 1e-9)
 
     def measure(self, image: np.ndarray, frame_index: int, time_s: float, centre: tuple[float, float],
-                box_size: tuple[float, float], length_px: float,
-                scale: float) -> tuple[tuple[float, float], float] | None:
+                box_size: tuple[float, float], length_px: float) -> tuple[tuple[float, float], float] | None:
         """The target's centre and scale from its segment about ``centre`` (the track's box
-        ``box_size``, its length ``length_px`` at scale ``scale``): the segment's centre, and the
-        scale its length implies; None where no plausible segment is found. Counts as this
-        interval's attempt either way."""
+        ``box_size``, its length ``length_px``): the segment's centre, and its length over the first
+        segment's; None where no plausible segment is found. Counts as this interval's attempt
+        either way."""
         self._last_time = time_s
         self.attempts += 1
         seg = segment_target(image, centre, length_px, self.cfg, self._seed(frame_index),
@@ -150,7 +152,7 @@ class Registrar:
         if seg is None:
             return None
         self.registrations += 1
-        return (seg.x, seg.y), seg.length_px / self.ratio / (length_px / scale)
+        return (seg.x, seg.y), seg.length_px / self.first_length_px
 
     def stats(self) -> dict:
         return {"segmentations": self.attempts, "registrations": self.registrations,
