@@ -27,9 +27,8 @@ oracle patched in:
 - ``--segment-recentre N``: not a bound: every N frames while held, a new template at the centre
   of a GrabCut segment of the target about the estimate (no ground truth), the template's
   registration taken from the target's extent.
-  With ``--segment-solidity F`` the segment must fill F of its minimum-area rectangle; with
-  ``--segment-rescale`` the scale is set from its length (calibrated on the first box's segment):
-  the probes before the product's ``segment`` settings (stop 35).
+  The product's form of this is the ``segment`` settings (``--set segment.score_quantile=1.0`` to
+  register whatever the score).
 - ``--oracle-template-every N``: a bound too: every N frames a new template built at the truth's
   box (the filter, the scale and the search left alone): what a recent view kept registered on the
   target would be worth.
@@ -53,11 +52,12 @@ from scipy.stats import norm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import common.detector.resample as resample  # noqa: E402
-from common.settings import profile_for  # noqa: E402
+from common.settings import SegmentRegistration, profile_for  # noqa: E402
 from common.single_target import runner  # noqa: E402
 from common.single_target.adaptation import TemplateAdapter  # noqa: E402
 from common.single_target.motion_cue import _RELATIVE_FLOOR, MotionCue  # noqa: E402
 from common.single_target.reacquire import Detection  # noqa: E402
+from common.single_target.segment import segment_target  # noqa: E402
 from common.sources import open_source  # noqa: E402
 from common.tracking.observation import CuedObservation  # noqa: E402
 from common.tracking.state import InitError  # noqa: E402
@@ -241,48 +241,19 @@ def patch_oracle_template_every(every: int, truth) -> None:
 
 
 def _segment_centre(img: np.ndarray, cx: float, cy: float, length: float, box_area: float,
-                    reach: float = 1.0, work_px: int = 128, solidity: float = 0.0,
-                    extent: dict | None = None) -> tuple[float, float] | None:
-    """The centre of GrabCut's largest foreground component in the square ``reach`` lengths either
-    side of (cx, cy) (a crop a further length wide as the background, worked at ``work_px``), or None
-    where nothing plausible is found (an area outside 0.2-2 times ``box_area``, or a component that
-    fills less than ``solidity`` of its minimum-area rectangle). OpenCV's RNG is
-    seeded before each call (GrabCut's k-means draws from it)."""
-    h, w = img.shape[:2]
-    r = reach * length + length
-    x0, y0, x1, y1 = int(max(0, cx - r)), int(max(0, cy - r)), int(min(w, cx + r)), int(min(h, cy + r))
-    crop = img[y0:y1, x0:x1]
-    if crop.shape[0] < 16 or crop.shape[1] < 16:
-        return None
-    f = min(1.0, work_px / max(crop.shape[:2]))
-    small = cv2.resize(crop, (max(8, int(crop.shape[1] * f)), max(8, int(crop.shape[0] * f))), interpolation=cv2.INTER_AREA)
-    rect = (int(max(1, (cx - reach * length - x0) * f)), int(max(1, (cy - reach * length - y0) * f)),
-            int(min(small.shape[1] - 2, 2 * reach * length * f)), int(min(small.shape[0] - 2, 2 * reach * length * f)))
-    mask = np.zeros(small.shape[:2], np.uint8)
-    cv2.setRNGSeed(0)
-    try:
-        cv2.grabCut(np.ascontiguousarray(small[:, :, ::-1]), mask, rect, np.zeros((1, 65)), np.zeros((1, 65)), 3,
-                    cv2.GC_INIT_WITH_RECT)
-    except cv2.error:
-        return None
-    fg = ((mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)).astype(np.uint8)
-    n, labels, stats, centres = cv2.connectedComponentsWithStats(fg, connectivity=8)
-    if n <= 1:
-        return None
-    i = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    if not 0.2 * box_area <= stats[i, cv2.CC_STAT_AREA] / f / f <= 2.0 * box_area:
-        return None
-    pts = np.argwhere(labels == i)[:, ::-1].astype(np.float32)
-    (_rx, _ry), (rw, rh), _a = cv2.minAreaRect(pts)
-    if solidity > 0 and stats[i, cv2.CC_STAT_AREA] < solidity * (rw + 1) * (rh + 1):
-        return None
-    if extent is not None:  # the segment's long side, image pixels
-        extent["long_px"] = (max(rw, rh) + 1) / f
-    return x0 + centres[i, 0] / f, y0 + centres[i, 1] / f
+                    reach: float = 1.0) -> tuple[float, float] | None:
+    """The centre of the target's segment about (cx, cy) by the product's segmentation
+    (:func:`common.single_target.segment.segment_target`: GrabCut in the square ``reach`` lengths
+    either side, its area 0.2-2 times ``box_area``), without its shape guard, as the probe had it
+    before the product's ``segment`` settings; None where nothing plausible is found. (Until stop
+    36 the probe had its own copy of the segmentation, seeded with 0: figures measured with it may
+    differ in the last digits.)"""
+    cfg = SegmentRegistration(enabled=True, reach_lengths=reach, min_solidity=0.0)
+    seg = segment_target(img, (cx, cy), length, cfg, seed=0, box_area_px=box_area)
+    return None if seg is None else (seg.x, seg.y)
 
 
-def patch_segment_recentre(every: int, agree: float | None = None, consistent: float | None = None,
-                           solidity: float = 0.0, rescale: bool = False) -> None:
+def patch_segment_recentre(every: int, agree: float | None = None, consistent: float | None = None) -> None:
     """Every ``every`` frames while p(V=1|Z) >= 0.5, a new template built at the centre of a GrabCut
     segment of the target about the estimate (``_segment_centre``; no ground truth), at the track's
     box and matching scale, the adaptation restarted from it: the template's registration taken
@@ -295,17 +266,7 @@ def patch_segment_recentre(every: int, agree: float | None = None, consistent: f
             m = state.map_estimate
             bw, bh = state.size
             length = self.scale.target_length_px
-            if rescale and not hasattr(self, "_segment_r0"):  # the first box's segment calibrates its extent
-                self._segment_r0 = None
-                x0, y0, w0, h0 = self._segment_first_box
-                e0: dict = {}
-                c0 = _segment_centre(self._segment_first_image, x0 + w0 / 2, y0 + h0 / 2, max(w0, h0), w0 * h0,
-                                     solidity=solidity, extent=e0)
-                if c0 is not None:
-                    self._segment_r0 = e0["long_px"] / max(w0, h0)
-            ext: dict = {}
-            c = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, length, bw * bh, solidity=solidity,
-                                extent=ext)
+            c = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, length, bw * bh)
             if c is None:
                 self._segment_offset = None
                 return state
@@ -318,24 +279,10 @@ def patch_segment_recentre(every: int, agree: float | None = None, consistent: f
                 c2 = _segment_centre(np.asarray(frame.image), m.image_x, m.image_y, length, bw * bh, reach=0.75)
                 if c2 is None or math.hypot(c[0] - c2[0], c[1] - c2[1]) > agree * length:
                     return state
-            if rescale and self._segment_r0 is not None:  # the scale from the segment's extent
-                s_seg = ext["long_px"] / self._segment_r0 / (length / self.scale.s)
-                if 0.5 <= s_seg / self.scale.s <= 2.0:
-                    self.scale.restart(s_seg)
-                    self.factor = self.scale.factor()
-                    bw, bh = self._box_size[0] * s_seg, self._box_size[1] * s_seg
             _retemplate(self, frame, c, (c[0] - bw / 2, c[1] - bh / 2, bw, bh))
         return state
 
-    start = runner.Tracker.start.__func__
-
-    def patched_start(cls, first, init_box, settings, detector=None):
-        tracker = start(cls, first, init_box, settings, detector)
-        tracker._segment_first_box, tracker._segment_first_image = init_box, np.asarray(first.image)
-        return tracker
-
     runner.Tracker.step = patched_step
-    runner.Tracker.start = classmethod(patched_start)
 
 
 def patch_cue_relative_cap() -> None:
@@ -372,11 +319,6 @@ def main() -> None:
     ap.add_argument("--segment-agree", type=float, metavar="LENGTHS",
                     help="with --segment-recentre: a second segmentation (a rectangle a quarter smaller) must "
                          "put the centre within LENGTHS target lengths of the first")
-    ap.add_argument("--segment-solidity", type=float, default=0.0, metavar="FRACTION",
-                    help="with --segment-recentre: the segment must fill this much of its minimum-area rectangle")
-    ap.add_argument("--segment-rescale", action="store_true",
-                    help="with --segment-recentre: the scale set from the segment's long side (calibrated on the "
-                         "first box's segment)")
     ap.add_argument("--segment-consistent", type=float, metavar="LENGTHS",
                     help="with --segment-recentre: the segment's offset from the MAP must be within LENGTHS "
                          "target lengths of the offset at the previous attempt")
@@ -397,8 +339,7 @@ def main() -> None:
     if a.oracle_template_every is not None:
         patch_oracle_template_every(a.oracle_template_every, src.truth)
     if a.segment_recentre is not None:
-        patch_segment_recentre(a.segment_recentre, a.segment_agree, a.segment_consistent, a.segment_solidity,
-                               a.segment_rescale)
+        patch_segment_recentre(a.segment_recentre, a.segment_agree, a.segment_consistent)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], src.truth[0], apply_overrides(profile_for(src, seed=seed), a.overrides))
         err = []
