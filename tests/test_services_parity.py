@@ -62,10 +62,13 @@ def test_every_mechanism_is_exercised(parity_run):
     # the tracker service adapted and re-registered as often as the in-process Tracker: each adapted
     # template went out on the template key with the next version; each re-registration is built by
     # the detector (a TEMPLATE query: the next version) and turned by the tracker to the first
-    # template's orientation (the one after); the queries asked for them
+    # template's orientation (the one after); the queries asked for them. Every version exactly
+    # once; sorted, since two services publish on the key (the detector the one it built, the
+    # tracker the turned one right after its reply) and under load the recording may hold the two
+    # of a frame in either order (seen once in a full CI run: ..., 16, 18, 17, ...)
     assert sum(q.kind == ScoreQuery.TEMPLATE for q in queries) == 1 + t.registrar.registrations
     versions = [m.version for m in rec.decoded("template")]
-    assert versions == list(range(1, t.adaptations + 2 * t.registrar.registrations + 2))
+    assert sorted(versions) == list(range(1, t.adaptations + 2 * t.registrar.registrations + 2))
     assert max(q.template_version for q in at) >= t.adaptations  # (the last frame's template is never used)
 
 
