@@ -139,7 +139,8 @@ def test_benchmark_end_to_end(sequence, tmp_path, capsys):
     assert pt["visible_frames"] == 9
     assert pt["precision20"] == 1.0 and pt["frames_lost"] == 0 and pt["fps"] > 0
     assert pt["mean_err"] < 5.0
-    assert 0.5 < pt["success_auc"] <= 20 / 21  # the axis-aligned envelope overlaps the car's box
+    # the axis-aligned box overlaps the car's box; no IoU passes the last threshold, 1 (the AUC is rounded)
+    assert 0.5 < pt["success_auc"] <= round(20 / 21, 4)
     assert res["mean"]["polartrack"]["precision20"] == pt["precision20"] and res["mean"]["polartrack"]["sequences"] == 1
     for path in (res["plots"]["precision"], res["plots"]["success"], res["plots"]["errors"]["carseq"]):
         assert Path(path).is_file() and Path(path).stat().st_size > 1000

@@ -170,9 +170,16 @@ class TrackState:
         return (m.image_x, m.image_y, self.size[0], self.size[1], m.theta)
 
     def axis_aligned_box(self) -> tuple[float, float, float, float] | None:
-        """(x, y, w, h) of the axis-aligned box around :meth:`oriented_box` (the benchmarks' box)."""
+        """(x, y, w, h) of the axis-aligned box with :meth:`oriented_box`'s extent (the benchmarks' box):
+        :func:`oriented_to_moment_box`, not the envelope :func:`oriented_to_axis_aligned`. The size is
+        the first box's, itself the axis-aligned envelope of the target as it stood on the first frame,
+        not the target's outline; the envelope of that box turned by the target's rotation counts the
+        turn twice (a 2:1 box turned 45 degrees doubles in area) and grows with every error of the
+        angle (7.5 degrees, one step of the matcher's angle grid, makes a 2:1 box's short side 25 %
+        longer). Turned as an extent, the box swaps its sides over a quarter turn and grows little on
+        the way (a 2:1 box by a quarter in area at 45 degrees; by 2.5 % on its short side at 7.5)."""
         ob = self.oriented_box()
-        return None if ob is None else oriented_to_axis_aligned(*ob)
+        return None if ob is None else oriented_to_moment_box(*ob)
 
     def __post_init__(self) -> None:
         for name in ("particles", "particles_image", "particle_visibility", "weights"):
@@ -202,6 +209,17 @@ def oriented_to_axis_aligned(cx: float, cy: float, w: float, h: float, theta_deg
     turned by ``theta_deg``."""
     c, s = abs(math.cos(math.radians(theta_deg))), abs(math.sin(math.radians(theta_deg)))
     bw, bh = w * c + h * s, w * s + h * c
+    return (cx - bw / 2.0, cy - bh / 2.0, bw, bh)
+
+
+def oriented_to_moment_box(cx: float, cy: float, w: float, h: float, theta_deg: float
+                           ) -> tuple[float, float, float, float]:
+    """(x, y, w, h) of the axis-aligned box with the same second moments along the image axes as a
+    w x h box centred on (cx, cy) and turned by ``theta_deg``: the box's extent E = diag(w^2, h^2)
+    turned as R E R^T (as extended-object trackers turn an extent), its sides the square roots of
+    the diagonal. w x h at 0 degrees, h x w at 90, sqrt((w^2 + h^2) / 2) square at 45."""
+    c2, s2 = math.cos(math.radians(theta_deg)) ** 2, math.sin(math.radians(theta_deg)) ** 2
+    bw, bh = math.sqrt(w * w * c2 + h * h * s2), math.sqrt(w * w * s2 + h * h * c2)
     return (cx - bw / 2.0, cy - bh / 2.0, bw, bh)
 
 
