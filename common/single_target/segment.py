@@ -111,11 +111,10 @@ class Registrar:
         self.seed = int(seed)
         self.max_score = float(max_score)
         """Segment only while the estimate's score is below this (``cfg.score_quantile``)."""
-        self.ratio: float | None = None
-        """The first box's segment's length over the box's long side (None: the target did not
-        segment on the first frame, and is not re-registered)."""
         self.first_length_px: float | None = None
-        """That segment's length: the length of a segment at scale 1."""
+        """The first box's segment's length: the length of a segment at scale 1 (None: the target
+        did not segment on the first frame, and is not re-registered)."""
+        self._first_box_length_px = 1.0
         self._last_time = -math.inf
         self.attempts = 0
         self.registrations = 0
@@ -130,12 +129,17 @@ class Registrar:
         re-registration one interval later)."""
         x, y, w, h = (float(v) for v in box)
         seg = segment_target(image, (x + w / 2, y + h / 2), max(w, h), self.cfg, self._seed(frame_index), w * h)
-        self.ratio = None if seg is None else seg.length_px / max(w, h)
         self.first_length_px = None if seg is None else seg.length_px
+        self._first_box_length_px = max(w, h)
         self._last_time = time_s
 
+    @property
+    def ratio(self) -> float | None:
+        """The first box's segment's length over the box's long side (a loose first box: under one)."""
+        return None if self.first_length_px is None else self.first_length_px / self._first_box_length_px
+
     def due(self, time_s: float, p_visible: float, score: float | None) -> bool:
-        return (self.ratio is not None and p_visible >= self.cfg.min_p_visible
+        return (self.first_length_px is not None and p_visible >= self.cfg.min_p_visible
                 and score is not None and score < self.max_score
                 and time_s - self._last_time >= self.cfg.interval_s - 1e-9)
 
