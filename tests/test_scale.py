@@ -184,3 +184,35 @@ def test_searches_after_a_restart_are_made_whatever_the_score():
     made = [st.maybe_search(0.2 * i, grid_at, State) for i in range(2, 8)]
     assert made == [True] * cfg.searches_after_restart + [False] * (6 - cfg.searches_after_restart)
     assert 1.0 <= st.s < 1.4 and abs(np.log(st.s)) < 0.6 * abs(np.log(1.4))  # corrected towards the target's
+
+
+def test_a_measured_restart_owes_no_search():
+    """A scale set by a measurement (the template's registration on the target's segment) is not
+    a sweep's step: it owes no search, and the score gate goes on deciding. car16 seed 1 (frames
+    236-250, docs/real-footage.md stop 38): owed searches made at p(V=1|Z) 0 after a registration
+    took the scale from 1.7 to 2.5 and set a growth rate that carried it to 4.4 before the track
+    settled on the background. Negative control: the same restart as a sweep's step searches."""
+    img = texture(seed=3)
+    centre = (img.shape[1] / 2, img.shape[0] / 2)
+    box = (centre[0] - 20, centre[1] - 10, 40, 20)
+    cfg = ScaleSettings(search_rate_gain=0.0)
+    matcher = PolarMatcher(Template(pmatrix=sample_template_pmatrix(img, centre, 1.0), centre=centre))
+
+    class State:
+        score, p_visible = 0.9, 0.0  # the target not seen
+
+        class map_estimate:
+            image_x, image_y = centre
+
+    def grid_at(k, xy):
+        return one_off_grid(0.0, img, matcher, k, xy)
+
+    measured = ScaleTracker(cfg, box, False, None, np.array(centre), 0.0)
+    measured.restart(1.4, swept=False)
+    assert not any(measured.maybe_search(0.2 * i, grid_at, State) for i in range(1, 6))
+    assert measured.s == 1.4 and measured.searches == 0
+    swept = ScaleTracker(cfg, box, False, None, np.array(centre), 0.0)
+    swept.restart(1.4)
+    made = [swept.maybe_search(0.2 * i, grid_at, State) for i in range(1, 6)]
+    assert made == [True] * cfg.searches_after_restart + [False] * (5 - cfg.searches_after_restart)
+    assert swept.s != 1.4

@@ -449,7 +449,7 @@ class Tracker:
         template = Template(pmatrix=rotate_pmatrix(built.pmatrix, -m.theta), centre=built.centre, box=built.box)
         self.detector.use_template(template)
         if self.scale.mode == "search":
-            self.scale.restart(s)
+            self.scale.restart(s, swept=False)
             self.factor = self.scale.factor()
         self.template = template
         ad = self.settings.adaptation

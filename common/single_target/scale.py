@@ -142,13 +142,15 @@ class ScaleTracker:
         """(lo, hi): the scales s_t whose factor is not clipped (beyond, the matching cannot follow)."""
         return self.u / max(self.cfg.max_upsample, 1.0), self.u / self.cfg.min_factor
 
-    def restart(self, s: float) -> None:
-        """Start again at scale ``s`` (a re-acquisition at that scale): no growth rate, no previous search;
-        the next ``searches_after_restart`` searches are made whatever the score."""
+    def restart(self, s: float, swept: bool = True) -> None:
+        """Start again at scale ``s``: no growth rate, no previous search. ``swept``: ``s`` is a
+        re-acquisition's sweep step, not a measurement, so the next ``searches_after_restart``
+        searches are made whatever the score; a measured scale (the template's registration on the
+        target's segment) owes none: the score gate goes on deciding."""
         self.s = float(s)
         self.rate = 0.0
         self._prev_search = None
-        self._owed = self.cfg.searches_after_restart
+        self._owed = self.cfg.searches_after_restart if swept else 0
         self._clip()
 
     def _clip(self) -> None:
