@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from common.evaluation.benchmark import (PER_FRAME_COLUMNS, SUCCESS_THRESHOLDS, box_iou, mean_scores, score_boxes,
+from common.evaluation.benchmark import (PER_FRAME_COLUMNS, SUCCESS_THRESHOLDS, box_iou, mean_scores,
+                                         mean_standard_errors, score_boxes, seed_standard_errors,
                                          success_curve, write_per_frame)
 from services.cli import main
 from common.evaluation import precision_curve
@@ -104,6 +105,19 @@ def test_mean_over_sequences():
     assert m == {"precision20": 0.75, "frames_lost": 1.5, "fps": 20.0, "sequences": 2}
 
 
+def test_standard_errors_over_seeds_by_hand():
+    """Three seeds at 0.5, 0.7, 0.9: sample standard deviation 0.2, standard error 0.2 / sqrt(3);
+    one seed has no spread to report (negative control); the mean over two sequences with standard
+    errors 0.03 and 0.04 has sqrt(0.03^2 + 0.04^2) / 2 = 0.025, and none when a sequence lacks one."""
+    per_seed = [{"precision20": v, "auc50": 0.6, "success_auc": v / 2} for v in (0.5, 0.7, 0.9)]
+    se = seed_standard_errors(per_seed)
+    assert se == {"precision20_se": round(0.2 / math.sqrt(3), 4), "auc50_se": 0.0,
+                  "success_auc_se": round(0.1 / math.sqrt(3), 4)}
+    assert seed_standard_errors(per_seed[:1]) == {}
+    assert mean_standard_errors([{"precision20_se": 0.03}, {"precision20_se": 0.04}]) == {"precision20_se": 0.025}
+    assert mean_standard_errors([{"precision20_se": 0.03}, {"precision20": 0.9}]) == {}
+
+
 # ----- the command --------------------------------------------------------------------------------
 
 def write_sequence(folder: Path, n: int = 12, nan_rows: tuple[int, ...] = (), extra_lines: int = 0) -> Path:
@@ -183,6 +197,10 @@ def test_benchmark_over_seeds(sequence, tmp_path, capsys):
     for key in ("precision20", "auc50", "success_auc", "mean_err"):
         assert pt[key] == pytest.approx(np.mean([r[key] for r in pt["seeds"]]), abs=1e-4)
     assert len({r["mean_err"] for r in pt["seeds"]}) > 1
+    for key in ("precision20", "auc50", "success_auc"):  # the seeds' spread: the standard error of their mean
+        assert pt[f"{key}_se"] == pytest.approx(np.std([r[key] for r in pt["seeds"]], ddof=1) / math.sqrt(3), abs=1e-4)
+    mean_row = json.loads((tmp_path / "a" / "benchmark.json").read_text())["mean"]["polartrack"]
+    assert mean_row["auc50_se"] == pt["auc50_se"]  # one sequence: the mean's standard error is its own
     # the per-frame CSV has every seed's run, each giving that seed's figures
     res_a = json.loads((tmp_path / "a" / "benchmark.json").read_text())
     rows = read_per_frame(res_a["per_frame"]["carseq"])
@@ -192,7 +210,7 @@ def test_benchmark_over_seeds(sequence, tmp_path, capsys):
         assert per["mean_err"] == pytest.approx(np.mean(errors), abs=1e-3)
     assert main([*base, "--out", str(tmp_path / "b"), "--seed", "4"]) == 0
     one = json.loads(capsys.readouterr().out)["sequences"][0]["trackers"]["polartrack"]
-    assert "seeds" not in one and one["mean_err"] == pt["seeds"][0]["mean_err"]
+    assert "seeds" not in one and one["mean_err"] == pt["seeds"][0]["mean_err"] and "precision20_se" not in one
     with pytest.raises(SystemExit) as exc:
         main([*base, "--seeds", "0"])
     assert exc.value.code == 2 and "--seeds" in capsys.readouterr().err

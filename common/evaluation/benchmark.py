@@ -127,6 +127,37 @@ def mean_scores(rows: list[dict], keys=SCORE_KEYS) -> dict:
     return out
 
 
+SPREAD_KEYS = ("precision20", "auc50", "success_auc")
+"""The figures whose spread over a tracker's seeds a benchmark reports (``KEY_se``)."""
+
+
+def seed_standard_errors(per_seed: list[dict], keys=SPREAD_KEYS) -> dict:
+    """``{KEY_se: s / sqrt(n)}`` over a sequence's ``n`` seeds, ``s`` their sample standard deviation
+    (ddof 1): the standard error of the seeds' mean, how far another set of ``n`` seeds would move
+    it (a particle filter's outcome on a real sequence can differ from seed to seed by most of its
+    range). Empty with fewer than two seeds."""
+    if len(per_seed) < 2:
+        return {}
+    out = {}
+    for k in keys:
+        vals = np.array([r[k] for r in per_seed if k in r], float)
+        if len(vals) >= 2:
+            out[f"{k}_se"] = round(float(np.std(vals, ddof=1) / np.sqrt(len(vals))), 4)
+    return out
+
+
+def mean_standard_errors(rows: list[dict], keys=SPREAD_KEYS) -> dict:
+    """The standard error of :func:`mean_scores`' mean over sequences from each sequence's
+    ``KEY_se`` (the sequences' seeds are drawn independently): sqrt(sum of se^2) / sequences. Only
+    where every sequence has one."""
+    out = {}
+    for k in keys:
+        ses = [r.get(f"{k}_se") for r in rows]
+        if rows and all(se is not None for se in ses):
+            out[f"{k}_se"] = round(float(np.sqrt(np.sum(np.square(ses))) / len(rows)), 4)
+    return out
+
+
 PER_FRAME_COLUMNS = ("frame", "tracker", "seed", "x", "y", "w", "h", "truth_x", "truth_y", "truth_w", "truth_h",
                      "centre_error", "iou")
 

@@ -233,7 +233,8 @@ def run_peers(prefix: list[str], spec: str, init, args, n_frames: int, bar) -> d
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from common.evaluation.benchmark import as_boxes, mean_scores, score_boxes, write_per_frame
+    from common.evaluation.benchmark import (as_boxes, mean_scores, mean_standard_errors, score_boxes,
+                                             seed_standard_errors, write_per_frame)
     from common.evaluation.plots import plot_curves, plot_errors_over_time
 
     sequences = open_sequences(args)
@@ -275,7 +276,8 @@ def run(args: argparse.Namespace) -> int:
             per_seed = [{"seed": seed, **sc.as_dict(), "fps": round(len(source) / el, 1) if el > 0 else None}
                         for seed, _, el, sc in seed_scores]
             means = {k: v for k, v in mean_scores(per_seed).items() if k != "sequences"}
-            results["polartrack"] = {**results["polartrack"], **means, "seeds": per_seed}
+            results["polartrack"] = {**results["polartrack"], **means, **seed_standard_errors(per_seed),
+                                     "seeds": per_seed}
         per_frame = [("polartrack", seed, b, sc) for seed, b, _, sc in seed_scores]
         per_frame += [(name, None, b, scores[name]) for name, (b, _) in runs.items() if name != "polartrack"]
         frames_csv = out_dir / f"frames-{source.name}.csv"
@@ -288,7 +290,8 @@ def run(args: argparse.Namespace) -> int:
         plots[source.name] = str(plot)
         rows.append({"sequence": source.name, "path": spec, "frames": len(source),
                      "visible_frames": int(visible.sum()), "init_box": list(init), "trackers": results})
-    mean = {name: mean_scores([r["trackers"][name] for r in rows]) for name in trackers}
+    mean = {name: {**mean_scores([r["trackers"][name] for r in rows]),
+                   **mean_standard_errors([r["trackers"][name] for r in rows])} for name in trackers}
     title = f"{len(rows)} sequence{'s' if len(rows) != 1 else ''}"
     for kind in ("precision", "success"):
         plot_curves(curves[kind], kind, out_dir / f"{kind}.png", f"{kind} plot, {title}")
@@ -307,7 +310,11 @@ def run(args: argparse.Namespace) -> int:
                                        "searched frame) were measured while that many ran",
                                "seeds": "with --seeds N, PolarTrack's figures per sequence are the mean "
                                         "over its N seeds (each seed's under 'seeds'); the plots show the "
-                                        "first seed"}}
+                                        "first seed",
+                               "_se": "with --seeds N (N >= 2), the standard error of that mean over the "
+                                      "seeds (sample standard deviation / sqrt(N)); in the mean over "
+                                      "sequences, sqrt(sum of the sequences' se^2) / sequences; the "
+                                      "table shows it after the figure (+-)"}}
     if opencv is not None:
         summary["opencv"] = opencv
     (out_dir / "benchmark.json").write_text(json.dumps(summary, indent=1))
@@ -330,8 +337,9 @@ def print_table(summary: dict) -> None:
         for i, (name, r) in enumerate(results.items()):
             fps = "-" if r.get("fps") is None else f"{r['fps']:.1f}"
             lost = f"{r['frames_lost']:g}" if isinstance(r["frames_lost"], float) else str(r["frames_lost"])
-            table.add_row(seq if i == 0 else "", name, frames if i == 0 else "", f"{r['precision20']:.3f}",
-                          f"{r['auc50']:.3f}", f"{r['success_auc']:.3f}", lost, fps,
+            figs = [f"{r[k]:.3f}" + (f" ±{r[k + '_se']:.3f}" if f"{k}_se" in r else "")
+                    for k in ("precision20", "auc50", "success_auc")]
+            table.add_row(seq if i == 0 else "", name, frames if i == 0 else "", *figs, lost, fps,
                           end_section=i == len(results) - 1)
 
     for row in summary["sequences"]:
