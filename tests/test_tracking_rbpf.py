@@ -261,6 +261,26 @@ def test_particles_outside_the_image_are_dropped():
     assert free.step(1.0, obs).weights[0] > 0
 
 
+def test_no_weighted_particle_inside_the_image_drops_the_constraint():
+    """The only particle inside the image carries no weight (log weight -inf, kept from an earlier
+    frame) and every weighted one lies outside: confining them all to the image would leave no
+    weight at all, and the normalisation -inf - (-inf) made every weight NaN and the step raise
+    (uav123-car16 seed 3 with 800 particles, frame 114, docs/real-footage.md stop 38). The
+    constraint is dropped for that frame: the weights are those of the unconfined filter."""
+    particles = np.array([[-20.0, 0, 50.0, 0, 0], [-30.0, 0, 60.0, 0, 0], [60.0, 0, 50.0, 0, 0]])
+    log_w = np.array([0.0, 0.0, -np.inf])  # the one inside (x = 60) has no weight
+    obs = GaussianBumpObservation(time=1.0, target_xy=(200.0, 100.0), image_size=(320, 240))
+    cfg = RBPFConfig(motion=NearConstantVelocity(q_x=0, q_y=0), orientation=OrientationRandomWalk(q_theta=0))
+    st = RBPF.from_particles(cfg, particles, log_weights=log_w, time=0.0).step(1.0, obs)
+    free = RBPF.from_particles(cfg.model_copy(update={"confine_to_image": False}), particles, log_weights=log_w,
+                               time=0.0).step(1.0, obs)
+    assert np.all(np.isfinite(st.weights)) and st.weights.sum() == pytest.approx(1.0)
+    assert np.array_equal(st.weights, free.weights) and st.weights[2] == 0.0
+    # negative control: with weight on the inside particle the constraint still holds
+    confined = RBPF.from_particles(cfg, particles, log_weights=np.zeros(3), time=0.0).step(1.0, obs)
+    assert confined.weights[0] == confined.weights[1] == 0.0 and confined.weights[2] == 1.0
+
+
 def test_kernel_mode_map():
     rng = np.random.default_rng(0)
     # a peaked posterior: the mode is the particle of highest weight

@@ -61,8 +61,8 @@ class ParticleFilterConfig(BaseModel):
 
     confine_to_image: bool = True
     """Pang 2010 §3 assumes the target always lies within the video frame: a particle whose image
-    position is outside [0, W-1] x [0, H-1] gets zero weight (skipped for a frame where every particle
-    is outside, and on frames without an observation). False: such particles are only scored (0 there)."""
+    position is outside [0, W-1] x [0, H-1] gets zero weight (skipped for a frame where no particle
+    inside carries weight, and on frames without an observation). False: such particles are only scored (0 there)."""
 
 
 class ParticleFilter:
@@ -130,7 +130,11 @@ class ParticleFilter:
         confines the target to the image), normalised; returns the log of their sum, the step's
         log likelihood."""
         if self.config.confine_to_image:
-            log_w = log_w + inside_image_log_prior(image_xy, observation.image_size)
+            confined = log_w + inside_image_log_prior(image_xy, observation.image_size)
+            # dropped for this frame when no particle inside the image carries weight (the inside
+            # ones all at -inf already): the product -inf - (-inf) would make every weight NaN
+            if np.isfinite(resampling.logsumexp(confined)):
+                log_w = confined
         log_lik = resampling.logsumexp(log_w)
         self.log_w = log_w - log_lik
         return log_lik
