@@ -129,8 +129,8 @@ class ScaleSettings(BaseModel):
     searches); 'auto' = homography when the source gives one, else search; 'off' = s_t = 1."""
     target_size_px: float | None = Field(48.0, gt=0)
     """Upsample a target whose initial box's long side is shorter than this so that it is about this
-    long in the matched image (the footprint the P-matrix layout was designed for: a ~50 px car). None:
-    never upsample."""
+    long in the matched image (the footprint the P-matrix layout was designed for: a ~50 px car); one
+    longer than the template's whole footprint (128 px) is reduced to it. None: never resampled."""
     max_upsample: float = Field(4.0, ge=1)
     """Largest upsampling factor u."""
     min_factor: float = Field(1 / 16, gt=0, le=1)

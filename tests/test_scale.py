@@ -8,7 +8,7 @@ from common.detector import FrameCache, PolarMatcher, Template
 from common.detector.client import one_off_grid
 from common.detector.observation import DetectorObservation
 from common.detector.resample import ResampledObservation, quantise_factor, sample_template_pmatrix
-from common.single_target.scale import ScaleTracker, upsample_factor
+from common.single_target.scale import ScaleTracker, initial_factor
 from common.settings import ScaleSettings
 
 
@@ -110,11 +110,13 @@ def test_a_target_at_the_frame_edge_is_matched(k):
     assert not whole.any()
 
 
-def test_upsampling_rule_and_quantisation():
-    assert upsample_factor((0, 0, 15, 12), 48.0, 4.0) == pytest.approx(3.2)
-    assert upsample_factor((0, 0, 10, 8), 48.0, 4.0) == 4.0
-    assert upsample_factor((0, 0, 50, 24), 48.0, 4.0) == 1.0
-    assert upsample_factor((0, 0, 15, 12), None, 4.0) == 1.0
+def test_initial_factor_rule_and_quantisation():
+    assert initial_factor((0, 0, 15, 12), 48.0, 4.0) == pytest.approx(3.2)
+    assert initial_factor((0, 0, 10, 8), 48.0, 4.0) == 4.0
+    assert initial_factor((0, 0, 50, 24), 48.0, 4.0) == 1.0
+    assert initial_factor((0, 0, 128, 60), 48.0, 4.0) == 1.0  # the footprint (128 px) still reaches past it
+    assert initial_factor((0, 0, 176, 90), 48.0, 4.0) == pytest.approx(48 / 176)  # wider: reduced to the design size
+    assert initial_factor((0, 0, 15, 12), None, 4.0) == 1.0
     assert quantise_factor(1.02) == 1.0
     assert quantise_factor(2.0) == 2.0
     assert quantise_factor(3.2) == pytest.approx(2 ** (20 / 12))

@@ -5,7 +5,8 @@ Settings: :class:`common.settings.ScaleSettings`. The frame is matched resampled
 
 - ``u``, chosen once from the initial box: a target whose long side ``L`` is shorter than
   ``target_size_px`` is enlarged by ``target_size_px / L`` (at most ``max_upsample``), so the
-  template's fixed footprint sees a target of about the size its layout was designed for;
+  template's fixed footprint sees a target of about the size its layout was designed for; one
+  longer than the footprint itself (``2 * SUPPORT_RADIUS_PX``) is reduced to that size too;
 - ``s_t``, the target's size relative to the first frame:
 
   * from a metric (ground-plane) homography: ``sqrt(det J_t(w_t)) / sqrt(det J_0(w_0))`` with
@@ -25,16 +26,26 @@ import math
 
 import numpy as np
 
+from common.detector.layout import SUPPORT_RADIUS_PX
 from common.detector.resample import quantise_factor
 from common.single_target.target_flow import FlowMeasurement
 from common.tracking.camera import homography_jacobian
 
 
-def upsample_factor(box: tuple[float, float, float, float], target_size_px: float | None,
-                    max_upsample: float) -> float:
-    """``u``: how much to enlarge the initial box's target so its long side is ``target_size_px``."""
+def initial_factor(box: tuple[float, float, float, float], target_size_px: float | None,
+                   max_upsample: float) -> float:
+    """``u``: how much to resample the initial box's target. Shorter than ``target_size_px``: enlarged
+    to it (at most ``max_upsample``). Longer than the template's footprint (``2 * SUPPORT_RADIUS_PX``
+    matched pixels): reduced to it as well, since matched at full resolution the footprint would
+    lie wholly inside the target, a template of its interior with none of the context its outer
+    columns are for (uav123-car16 from frame 440, a 176 px first box: docs/real-footage.md, stop
+    38). Between the two, matched as it is (1.0), as before."""
     long_side = max(float(box[2]), float(box[3]))
-    if target_size_px is None or long_side >= target_size_px or long_side <= 0:
+    if target_size_px is None or long_side <= 0:
+        return 1.0
+    if long_side > 2 * SUPPORT_RADIUS_PX:
+        return float(target_size_px / long_side)
+    if long_side >= target_size_px:
         return 1.0
     return float(min(max_upsample, target_size_px / long_side))
 
@@ -69,7 +80,7 @@ class ScaleTracker:
             self.mode = "homography" if metric_homography else "search"
         if self.mode == "homography" and not metric_homography:
             self.mode = "off"  # nothing to take the scale from
-        self.u = upsample_factor(init_box, cfg.target_size_px, cfg.max_upsample)
+        self.u = initial_factor(init_box, cfg.target_size_px, cfg.max_upsample)
         self.length_px = max(float(init_box[2]), float(init_box[3]))
         self.s = 1.0
         self._j0 = _sqrt_det(first_homography, first_world_xy) if self.mode == "homography" else 1.0
