@@ -276,6 +276,11 @@ def test_no_weighted_particle_inside_the_image_drops_the_constraint():
                                time=0.0).step(1.0, obs)
     assert np.all(np.isfinite(st.weights)) and st.weights.sum() == pytest.approx(1.0)
     assert np.array_equal(st.weights, free.weights) and st.weights[2] == 0.0
+    # nobody inside at all: dropped alike
+    outside = particles[:2]
+    st_out = RBPF.from_particles(cfg, outside, time=0.0).step(1.0, obs)
+    free_out = RBPF.from_particles(cfg.model_copy(update={"confine_to_image": False}), outside, time=0.0).step(1.0, obs)
+    assert np.array_equal(st_out.weights, free_out.weights) and np.all(st_out.weights > 0)
     # negative control: with weight on the inside particle the constraint still holds
     confined = RBPF.from_particles(cfg, particles, log_weights=np.zeros(3), time=0.0).step(1.0, obs)
     assert confined.weights[0] == confined.weights[1] == 0.0 and confined.weights[2] == 1.0

@@ -129,13 +129,16 @@ class ParticleFilter:
         """Set the log weights to ``log_w`` (times the inside-the-image prior when the config
         confines the target to the image), normalised; returns the log of their sum, the step's
         log likelihood."""
+        log_lik = None
         if self.config.confine_to_image:
             confined = log_w + inside_image_log_prior(image_xy, observation.image_size)
-            # dropped for this frame when no particle inside the image carries weight (the inside
-            # ones all at -inf already): the product -inf - (-inf) would make every weight NaN
-            if np.isfinite(resampling.logsumexp(confined)):
-                log_w = confined
-        log_lik = resampling.logsumexp(log_w)
+            # dropped for this frame when no particle inside the image carries weight (none inside,
+            # or the inside ones all at -inf already): -inf - (-inf) would make every weight NaN
+            lse = resampling.logsumexp(confined)
+            if np.isfinite(lse):
+                log_w, log_lik = confined, lse
+        if log_lik is None:
+            log_lik = resampling.logsumexp(log_w)
         self.log_w = log_w - log_lik
         return log_lik
 

@@ -91,11 +91,9 @@ def sanitise_scores(scores: np.ndarray, valid: np.ndarray, n: int) -> tuple[np.n
 
 def inside_image_log_prior(image_xy: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
     """0 for particles whose image position lies in [0, W-1] x [0, H-1], -inf elsewhere (Pang §3: the
-    target is within the frame). All zeros if no particle is inside (the constraint is then dropped
-    for this frame rather than leaving no particle with weight)."""
+    target is within the frame). The filter drops it for a frame where it would leave no particle
+    with weight (:meth:`common.tracking._frames.ParticleFilter._normalise`)."""
     w, h = image_size
     x, y = image_xy[:, 0], image_xy[:, 1]
     inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)  # False for NaN
-    if not inside.any():
-        return np.zeros(len(image_xy))
     return np.where(inside, 0.0, -np.inf)
