@@ -265,14 +265,14 @@ def test_mismatched_groundtruth(tmp_path, capsys):
 
 
 def test_a_first_box_the_tracker_refuses_is_the_same_one_line_error_with_jobs(tmp_path, capsys):
-    """A first box too near the frame's edge for the matcher: refused by the tracker when it starts,
-    in this process (--jobs 1) or in a worker (--jobs 2), with the same one-line error."""
+    """A first box whose centre lies outside the frame: refused by the tracker when it starts, in
+    this process (--jobs 1) or in a worker (--jobs 2), with the same one-line error."""
     folder = write_sequence(tmp_path / "edgeseq", n=4)
     lines = (folder / "groundtruth_rect.txt").read_text().splitlines()
-    (folder / "groundtruth_rect.txt").write_text("\n".join(["1,1,5,5", *lines[1:]]) + "\n")
+    (folder / "groundtruth_rect.txt").write_text("\n".join(["-30,1,20,5", *lines[1:]]) + "\n")
     argv = ["benchmark", str(folder), "--json", "--no-progress", "--out", str(tmp_path / "out")]
     err = one_line_error(capsys, argv)
-    assert "edgeseq" in err and "inside" in err
+    assert "edgeseq" in err and "outside the" in err
     assert one_line_error(capsys, [*argv, "--jobs", "2", "--seeds", "2"]) == err
 
 

@@ -49,13 +49,13 @@ def test_a_box_starting_with_a_minus_is_read_as_a_box(capsys):
 
 def test_a_failed_track_writes_no_header_and_no_file(tmp_path, capsys):
     out = tmp_path / "track.csv"
-    argv = ["track", "synthetic:0", "--frames", "2", "--no-progress", "--init", "1,1,15,12"]
+    argv = ["track", "synthetic:0", "--frames", "2", "--no-progress", "--init", "-30,1,15,12"]
     assert main([*argv, "--out", str(out)]) == 2
-    assert "at least 64 px inside" in capsys.readouterr().err
+    assert "is outside the 1280x720 frame" in capsys.readouterr().err
     assert not out.exists()
     assert main(argv) == 2
     captured = capsys.readouterr()
-    assert captured.out == "" and "at least 64 px inside" in captured.err
+    assert captured.out == "" and "is outside the 1280x720 frame" in captured.err
     # the control: a good box writes the header and one row per frame
     assert main(["track", "synthetic:0", "--frames", "2", "--no-progress", "--out", str(out)]) == 0
     lines = out.read_text().splitlines()

@@ -83,7 +83,6 @@ def test_eval_json(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["track", "synthetic:1", "--frames", "3", "--init", "5000,10,40,20"], "outside the 1280x720 frame"),
-    (["track", "synthetic:1", "--frames", "3", "--init", "10,10,40,20"], "at least 64 px inside"),
     (["track", "synthetic:1", "--frames", "3", "--init", "600,300,-4,20"], "must be positive"),
     (["track", "nowhere/at/all.mp4"], "no such file or folder"),
     (["eval", "synthetic:1", "--filter", "rbpf,kalman"], "unknown filter"),

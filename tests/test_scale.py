@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from common.detector import FrameCache, PolarMatcher, Template
-from common.detector.client import one_off_grid
+from common.detector.client import make_template, one_off_grid
 from common.detector.observation import DetectorObservation
 from common.detector.resample import ResampledObservation, quantise_factor, sample_template_pmatrix
 from common.single_target.scale import ScaleTracker, initial_factor
@@ -108,6 +108,46 @@ def test_a_target_at_the_frame_edge_is_matched(k):
     assert obs.pmatrix_at(edge_x - 40.0 / k, centre[1]) is not None
     _, whole = one_off_grid(0.0, shifted, m, k, xy)
     assert not whole.any()
+
+
+def test_the_plain_detector_scores_a_target_at_the_edge_as_the_resampled_one_does():
+    """At k = 1 (the full-frame preparation, no reflected margin on its top and left) a target whose
+    footprint passes the frame's edge is scored on a reflected crop, as at any other factor: the
+    same numbers as the resampled observation's, peaked at the target; hypotheses whose footprint
+    lies in the frame keep the full frame's scores; negative control: other ground scores low."""
+    img = texture(seed=3, size=(480, 640))
+    centre = (320.0, 240.0)
+    m = PolarMatcher(Template(pmatrix=sample_template_pmatrix(img, centre, 1.0), centre=centre))
+    edge_x = 30.0  # 30 px from the left edge: the footprint (64 px) passes it
+    shifted = np.roll(img, int(round(edge_x - centre[0])), axis=1)
+    xy = np.array([[edge_x + dx, centre[1] + dy] for dy in (-6.0, 0.0, 6.0) for dx in (-6.0, 0.0, 6.0)])
+    plain, pv = DetectorObservation(0, 0.0, shifted, m, FrameCache()).score_grid(xy)
+    resampled, rv = ResampledObservation(0, 0.0, shifted, m, 1.0).score_grid(xy)
+    assert pv.all() and rv.all() and np.array_equal(plain, resampled)
+    assert int(np.argmax(plain.max(axis=1))) == 4 and plain.max() > 0.6, plain.max(axis=1)
+    other, _ = DetectorObservation(0, 0.0, texture(seed=4, size=(480, 640)), m, FrameCache()).score_grid(xy)
+    assert other.max() < plain.max() - 0.3
+    # the target itself must be in view (EDGE_SUPPORT_PX = 24 px inside); a whole footprint inside
+    # is scored on the full frame's preparation as before
+    hyps = np.array([[20.0, 240.0, 0.0], [30.0, 240.0, 0.0], [200.0, 240.0, 0.0]])
+    s, v = DetectorObservation(0, 0.0, shifted, m, FrameCache()).score_at(hyps)
+    assert v.tolist() == [False, True, True] and s[0] == 0.0
+    alone, _ = DetectorObservation(0, 0.0, shifted, m, FrameCache()).score_at(hyps[2:])
+    assert alone[0] == pytest.approx(s[2], abs=1e-6)  # float32 sums batched otherwise
+
+
+def test_a_template_boxed_at_the_frame_edge():
+    """A first box nearer the edge than the footprint: the template reads the frame reflected there
+    and matches its own frame at the box's centre (score 1); away from the edges it is the full
+    frame's template, bit for bit."""
+    img = texture(seed=5, size=(480, 640))
+    at_edge = make_template(img, (30.0, 450.0), (20.0, 440.0, 20.0, 20.0), 1.0)
+    theta, score = ResampledObservation(0, 0.0, img, PolarMatcher(at_edge), 1.0).refine_peak(30.0, 450.0)
+    assert score > 0.999 and abs(theta) < 1.0
+    inside = make_template(img, (320.0, 240.0), (310.0, 230.0, 20.0, 20.0), 1.0)
+    assert np.array_equal(inside.pmatrix, Template.from_image(img, (320.0, 240.0)).pmatrix)
+    with pytest.raises(ValueError, match="too close to the edge"):
+        Template.from_image(img, (30.0, 450.0))  # the plain template alone cannot
 
 
 def test_initial_factor_rule_and_quantisation():

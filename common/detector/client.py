@@ -27,14 +27,18 @@ import numpy as np
 from common.detector.frame import FrameCache
 from common.detector.matcher import PolarMatcher
 from common.detector.observation import DetectorObservation
-from common.detector.resample import ResampledObservation, sample_template_pmatrix
+from common.detector.resample import ResampledObservation, footprint_inside, sample_template_pmatrix
 from common.detector.template import Template
 
 
 def make_template(image: np.ndarray, centre: tuple[float, float], box: tuple[float, float, float, float],
                   k: float) -> Template:
-    """The template at ``centre`` of ``image`` matched at resampling factor ``k``."""
-    if k == 1.0:
+    """The template at ``centre`` of ``image`` matched at resampling factor ``k``. Where the footprint
+    passes the frame's edge (a target first boxed near it) the part beyond is read from the frame
+    reflected across the edge, as a resampled crop is filled (:class:`common.detector.resample.ResampledRegion`;
+    at ``k`` = 1 its coefficients are the full frame's, so the two ways agree wherever both apply)."""
+    h, w = np.asarray(image).shape[:2]
+    if k == 1.0 and footprint_inside(np.array([centre], float), 1.0, (w, h))[0]:
         return Template.from_image(image, centre, box=box)
     return Template(pmatrix=sample_template_pmatrix(image, centre, k), centre=centre,
                     box=tuple(float(v) for v in box))

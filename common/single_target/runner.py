@@ -23,7 +23,6 @@ from common.single_target.adaptation import TemplateAdapter, registered_point
 from common.detector import Template
 from common.detector.template import rotate_pmatrix
 from common.detector.client import DetectorClient, LocalDetector
-from common.detector.layout import SUPPORT_RADIUS_PX
 from common.single_target.motion_cue import MotionCue
 from common.single_target.reacquire import Detection, Reacquirer
 from common.single_target.scale import ScaleTracker
@@ -40,6 +39,10 @@ from common.tracking.observation import CuedObservation, ObservationUnavailable
 
 
 def check_init_box(box: tuple[float, float, float, float], width: int, height: int) -> None:
+    """InitError unless ``box`` (x, y, w, h) is finite, of positive size, with its centre in the
+    ``width`` x ``height`` frame. A centre nearer the edge than the template's footprint is allowed:
+    the template reads the frame reflected across its edge there (:func:`common.detector.client.make_template`),
+    as the filter's scores of a target near the edge do."""
     x, y, w, h = box
     if not all(np.isfinite(v) for v in box):
         raise InitError(f"--init {box}: values must be finite")
@@ -49,10 +52,6 @@ def check_init_box(box: tuple[float, float, float, float], width: int, height: i
     if not (0 <= cx < width and 0 <= cy < height):
         raise InitError(f"--init {x:g},{y:g},{w:g},{h:g}: the box centre ({cx:g}, {cy:g}) is outside the "
                         f"{width}x{height} frame")
-    r = SUPPORT_RADIUS_PX
-    if not (r <= cx <= width - 1 - r and r <= cy <= height - 1 - r):
-        raise InitError(f"--init {x:g},{y:g},{w:g},{h:g}: the box centre must be at least {r} px inside the "
-                        f"{width}x{height} frame to build the template")
 
 
 def length_in_world(length_px: float, image_xy, homography: np.ndarray | None) -> float:
