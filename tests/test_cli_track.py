@@ -106,3 +106,8 @@ def test_unreadable_video_and_mismatched_folder(tmp_path, capsys):
     (d / "groundtruth_rect.txt").write_text("1,1,5,5\n2,2,5,5\n")
     assert main(["eval", str(d), "--no-progress"]) == 2
     assert "2 boxes but img/ has 1 frames" in capsys.readouterr().err
+    # a frame of another size: one line naming it, not the optical flow's traceback
+    cv2.imwrite(str(d / "img" / "000002.jpg"), np.zeros((160, 240, 3), np.uint8))
+    assert main(["track", str(d), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "000002.jpg: 240x160 pixels, the folder's other frames 200x200" in err and err.count("\n") == 1

@@ -70,6 +70,21 @@ def test_empty_folder_and_missing_path(tmp_path):
         open_source(str(tmp_path / "nothing.mp4"))
 
 
+def test_a_frame_of_another_size_in_a_folder_is_a_source_error(tmp_path):
+    """A folder whose frames change size mid-sequence (the tracker's optical flow raised on it)
+    gives a SourceError naming the frame and both sizes; the frames before it are read."""
+    d = tmp_path / "seq" / "img"
+    d.mkdir(parents=True)
+    for i, (w, h) in enumerate([(64, 48), (64, 48), (80, 40), (64, 48)]):
+        cv2.imwrite(str(d / f"{i + 1:04d}.jpg"), np.full((h, w, 3), 30 * i, np.uint8))
+    src = open_source(str(tmp_path / "seq"))
+    frames = iter(src)
+    assert [next(frames).size for _ in range(2)] == [(64, 48), (64, 48)]
+    with pytest.raises(SourceError, match=r"0003.jpg: 80x40 pixels, the folder's other frames 64x48"):
+        next(frames)
+    assert src.frame(3).size == (64, 48)  # the control: a frame of the folder's size
+
+
 def test_unreadable_video(tmp_path):
     p = tmp_path / "broken.mp4"
     p.write_bytes(b"\x00\x01 definitely not a video" * 100)

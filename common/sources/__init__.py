@@ -120,6 +120,8 @@ class FolderSource(Source):
         if n_frames is not None:
             self.files = self.files[:max(0, int(n_frames))]
             self.truth = None if self.truth is None else self.truth[:len(self.files)]
+        self._size: tuple[int, int] | None = None
+        """(width, height) of the first frame read: every frame must have it."""
 
     def __len__(self) -> int:
         return len(self.files)
@@ -137,6 +139,13 @@ class FolderSource(Source):
             img = decode_rgb(data)
         except (OSError, ImageReadError):
             raise SourceError(f"{path}: not a readable image (OpenCV could not decode it)") from None
+        size = (int(img.shape[1]), int(img.shape[0]))
+        if self._size is None:
+            self._size = size
+        elif size != self._size:
+            raise SourceError(f"{path}: {size[0]}x{size[1]} pixels, the folder's other frames "
+                              f"{self._size[0]}x{self._size[1]}; every frame of a sequence must have one size "
+                              f"(resize or remove this one)")
         truth = None
         if self.truth is not None:
             truth = GroundTruth(box=self.truth[i])
