@@ -103,6 +103,9 @@ def test_score_boxes_excludes_frames_without_truth():
 def test_mean_over_sequences():
     m = mean_scores([{"precision20": 1.0, "fps": 10.0, "frames_lost": 0}, {"precision20": 0.5, "fps": 30.0, "frames_lost": 3}])
     assert m == {"precision20": 0.75, "frames_lost": 1.5, "fps": 20.0, "sequences": 2}
+    # a failed run has no fps: the mean is the others'
+    m = mean_scores([{"precision20": 1.0, "fps": 10.0}, {"precision20": 0.5, "fps": None}])
+    assert m == {"precision20": 0.75, "fps": 10.0, "sequences": 2}
 
 
 def test_standard_errors_over_seeds_by_hand():
@@ -120,10 +123,11 @@ def test_standard_errors_over_seeds_by_hand():
 
 # ----- the command --------------------------------------------------------------------------------
 
-def write_sequence(folder: Path, n: int = 12, nan_rows: tuple[int, ...] = (), extra_lines: int = 0) -> Path:
-    """``n`` synthetic frames as JPEGs under ``folder/img`` and their truth boxes (0-based) as
-    ``groundtruth_rect.txt``, NaN on ``nan_rows``."""
-    src = SyntheticSource(seed=0, n_frames=n)
+def write_sequence(folder: Path, n: int = 12, nan_rows: tuple[int, ...] = (), extra_lines: int = 0,
+                   seed: int = 0) -> Path:
+    """``n`` frames of the synthetic scene ``seed`` as JPEGs under ``folder/img`` and their truth
+    boxes (0-based) as ``groundtruth_rect.txt``, NaN on ``nan_rows``."""
+    src = SyntheticSource(seed=seed, n_frames=n)
     (folder / "img").mkdir(parents=True)
     lines = []
     for i in range(n):
@@ -274,6 +278,45 @@ def test_a_first_box_the_tracker_refuses_is_the_same_one_line_error_with_jobs(tm
     err = one_line_error(capsys, argv)
     assert "edgeseq" in err and "outside the" in err
     assert one_line_error(capsys, [*argv, "--jobs", "2", "--seeds", "2"]) == err
+
+
+def test_a_run_that_raises_fails_its_sequence_not_the_benchmark(sequence, tmp_path, capsys, monkeypatch):
+    """An exception inside the tracker on one sequence: the other sequence is scored as without it,
+    the failed one up to the frame that raised (its later frames misses), the error is listed under
+    it with its traceback file and said in one line on stderr, and the command exits 1."""
+    from common.single_target.runner import Tracker
+
+    other = write_sequence(tmp_path / "otherseq", n=10, seed=3)
+    argv = ["benchmark", str(sequence), str(other), "--json", "--frames", "10", "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "ok")]) == 0
+    clean = {r["sequence"]: r["trackers"]["polartrack"] for r in json.loads(capsys.readouterr().out)["sequences"]}
+    x, y, w, h = (float(v) for v in (other / "groundtruth_rect.txt").read_text().splitlines()[0].split(","))
+    step = Tracker.step
+
+    def failing_step(self, frame):
+        if frame.index == 4 and self.template.centre == (x + w / 2, y + h / 2):  # otherseq's tracker only
+            raise RuntimeError("a fault for the test\nits second line")
+        return step(self, frame)
+
+    monkeypatch.setattr(Tracker, "step", failing_step)
+    out = tmp_path / "failed"
+    assert main([*argv, "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    res = {r["sequence"]: r["trackers"]["polartrack"] for r in json.loads(captured.out)["sequences"]}
+    drop = {"fps", "reacquisition"}
+    assert {k: v for k, v in res["carseq"].items() if k not in drop} == \
+        {k: v for k, v in clean["carseq"].items() if k not in drop}
+    bad = res["otherseq"]
+    assert [(e["seed"], e["frame"], e["error"]) for e in bad["errors"]] == [(0, 4, "RuntimeError: a fault for the test")]
+    assert "failing_step" in Path(bad["errors"][0]["traceback"]).read_text()
+    # frames 0-3 as tracked without the fault, 4-9 without a box: misses
+    rows = [line.split(",") for line in (out / "frames-otherseq.csv").read_text().splitlines()[1:]]
+    ok_rows = [line.split(",") for line in (tmp_path / "ok" / "frames-otherseq.csv").read_text().splitlines()[1:]]
+    assert rows[:4] == ok_rows[:4] and all(r[3] == "" for r in rows[4:]) and len(rows) == 10
+    assert bad["precision20"] <= 0.4 < clean["otherseq"]["precision20"]
+    assert bad["fps"] is None and res["carseq"]["fps"] > 0  # a failed run's time covers 4 frames: no rate
+    err = captured.err.strip()
+    assert err.count("\n") == 0 and "otherseq, seed 0: PolarTrack failed at frame 4: RuntimeError: a fault" in err
 
 
 def test_not_a_sequence(tmp_path, capsys):

@@ -117,10 +117,11 @@ def score_boxes(boxes, truth) -> SequenceScore:
 
 def mean_scores(rows: list[dict], keys=SCORE_KEYS) -> dict:
     """The mean over sequences of each figure in ``keys`` (per-sequence dicts such as
-    :meth:`SequenceScore.as_dict` plus ``fps``), each sequence weighing the same."""
+    :meth:`SequenceScore.as_dict` plus ``fps``), each sequence weighing the same; a figure a sequence
+    does not have (None: a failed run's fps) is left out of its mean."""
     out = {}
     for k in keys:
-        vals = [r[k] for r in rows if k in r]
+        vals = [r[k] for r in rows if r.get(k) is not None]
         if vals:
             out[k] = round(float(np.mean(vals)), 4)
     out["sequences"] = len(rows)

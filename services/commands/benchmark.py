@@ -17,7 +17,9 @@ reading the images not included); the mean weighs every sequence the same. A pee
 precision.png and success.png (one curve per tracker, AUC in the legend), errors-SEQ.png per
 sequence (centre error per frame), frames-SEQ.csv per sequence (every run's box, centre error and
 IoU on every frame: one run per tracker, PolarTrack's one per seed) and benchmark.json (what
---json prints). ``--jobs N`` makes N of
+--json prints). A PolarTrack run that raises does not stop the benchmark: its later frames are
+scored as misses, the error is listed under its sequence (``errors``, the traceback in
+error-SEQ-seedN.txt) and said in one line on stderr, and the command exits 1. ``--jobs N`` makes N of
 PolarTrack's runs (sequences x seeds) at once, each in a spawned worker process that opens its
 sequence again: every run is a function of its sequence, settings and seed alone, so the boxes and
 figures are those of one run at a time (tested); only the timings (fps, the re-acquisition's ms per
@@ -119,23 +121,36 @@ def peer_command(args) -> list[str]:
     return [uv, "run", *peer_env(), "python", str(PEERS_TOOL)]
 
 
-def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float, dict | None]:
-    """PolarTrack's axis-aligned box per frame (NaN rows where it has none), its seconds and its
-    re-acquisition's statistics (None when off)."""
-    from common.single_target.runner import Tracker
+def run_polartrack(source, init, settings, bar) -> tuple[np.ndarray, float, dict | None, dict | None]:
+    """PolarTrack's axis-aligned box per frame (NaN rows where it has none), its seconds, its
+    re-acquisition's statistics (None when off) and its failure (None, or the frame, the error's
+    one line and its traceback): a run that raises is a failed run of its sequence and seed, its
+    frames from there on without a box (scored as misses), not the end of the benchmark. A first box
+    the tracker refuses and an unreadable frame stay the command's one-line usage errors."""
+    import traceback
 
-    tracker, boxes, elapsed = None, [], 0.0
+    from common.single_target.runner import InitError, Tracker
+    from common.sources import SourceError
+
+    tracker, boxes, elapsed, failure = None, [], 0.0, None
     for frame in source:
-        t0 = time.perf_counter()
-        if tracker is None:
-            tracker = Tracker.start(frame, init, settings)
-        state = tracker.step(frame)
-        elapsed += time.perf_counter() - t0
-        box = state.axis_aligned_box()
+        box = None
+        if failure is None:
+            t0 = time.perf_counter()
+            try:
+                if tracker is None:
+                    tracker = Tracker.start(frame, init, settings)
+                box = tracker.step(frame).axis_aligned_box()
+            except (InitError, SourceError):
+                raise
+            except Exception as exc:  # noqa: BLE001 - reported as this run's failure, below
+                failure = {"frame": frame.index, "error": f"{type(exc).__name__}: {exc}".splitlines()[0][:300],
+                           "traceback": traceback.format_exc()}
+            elapsed += time.perf_counter() - t0
         boxes.append((np.nan,) * 4 if box is None else box)
         bar.update(1)
     stats = tracker.reacquirer.stats() if tracker is not None and tracker.reacquirer is not None else None
-    return np.asarray(boxes, float), elapsed, stats
+    return np.asarray(boxes, float), elapsed, stats, failure
 
 
 class _NoBar:
@@ -145,14 +160,14 @@ class _NoBar:
         pass
 
 
-def _run_in_worker(spec: str, n_frames: int | None, init, settings) -> tuple[np.ndarray, float, dict | None]:
+def _run_in_worker(spec: str, n_frames: int | None, init, settings) -> tuple[np.ndarray, float, dict | None, dict | None]:
     """One PolarTrack run in a worker process of ``--jobs``: the sequence opened there again."""
     from common.sources import open_source
 
     return run_polartrack(open_source(spec, n_frames=n_frames), init, settings, _NoBar())
 
 
-def run_all_polartrack(sequences, args, quiet: bool) -> list[list[tuple[np.ndarray, float, dict | None]]]:
+def run_all_polartrack(sequences, args, quiet: bool) -> list[list[tuple[np.ndarray, float, dict | None, dict | None]]]:
     """PolarTrack's runs, per sequence a list over the seeds: one at a time in this process
     (``--jobs 1``), or ``--jobs`` at a time in worker processes (spawned: nothing of this
     process's state is shared), collected in the same order."""
@@ -244,11 +259,14 @@ def run(args: argparse.Namespace) -> int:
     trackers = ["polartrack", *(PEERS if args.peers else ())]
     rows, curves, plots, frame_files, opencv = [], {"precision": {}, "success": {}}, {}, {}, None
     quiet = args.no_progress
-    all_seeded = run_all_polartrack(sequences, args, quiet)  # per sequence: (boxes, elapsed, re-acquisition) per seed
+    # per sequence, per seed: (boxes, elapsed, re-acquisition, failure)
+    all_seeded = run_all_polartrack(sequences, args, quiet)
+    failed = []  # (sequence, seed, failure) of the runs that raised
     for (spec, source, init, settings), seeded in zip(sequences, all_seeded):
         truth = as_boxes(source.truth)
-        boxes, elapsed, reacq = seeded[0]
-        runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 else float("nan"))}
+        boxes, elapsed, reacq, failure0 = seeded[0]
+        # a failed run's time covers only the frames before it raised: no rate
+        runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 and failure0 is None else None)}
         failures = {}  # a peer's frames where OpenCV reported failure (it kept its last box there)
         if prefix is not None:
             with tqdm(total=len(source) * len(PEERS), unit="frame", desc=f"{source.name} peers", disable=quiet,
@@ -270,10 +288,22 @@ def run(args: argparse.Namespace) -> int:
             curves["success"].setdefault(name, []).append(sc.success)
         if reacq is not None:
             results["polartrack"]["reacquisition"] = reacq
+        errors = []
+        for seed, (*_, failure) in zip(range(args.seed, args.seed + args.seeds), seeded):
+            if failure is not None:
+                trace = out_dir / f"error-{source.name}-seed{seed}.txt"
+                trace.write_text(failure["traceback"])
+                errors.append({"seed": seed, "frame": failure["frame"], "error": failure["error"],
+                               "traceback": str(trace)})
+                failed.append((source.name, seed, failure))
+        if errors:
+            results["polartrack"]["errors"] = errors
         seed_scores = [(seed, b, el, scores["polartrack"] if seed == args.seed else score_boxes(b, truth))
-                       for seed, (b, el, _) in zip(range(args.seed, args.seed + args.seeds), seeded)]
+                       for seed, (b, el, *_) in zip(range(args.seed, args.seed + args.seeds), seeded)]
         if args.seeds > 1:
-            per_seed = [{"seed": seed, **sc.as_dict(), "fps": round(len(source) / el, 1) if el > 0 else None}
+            failed_seeds = {e["seed"] for e in errors}
+            per_seed = [{"seed": seed, **sc.as_dict(),
+                         "fps": round(len(source) / el, 1) if el > 0 and seed not in failed_seeds else None}
                         for seed, _, el, sc in seed_scores]
             means = {k: v for k, v in mean_scores(per_seed).items() if k != "sequences"}
             results["polartrack"] = {**results["polartrack"], **means, **seed_standard_errors(per_seed),
@@ -300,6 +330,9 @@ def run(args: argparse.Namespace) -> int:
                          "errors": plots},
                "per_frame": frame_files,
                "definitions": {"scored_frames": "frames whose ground truth is a box (NaN rows left out)",
+                               "errors": "PolarTrack's runs that raised (seed, frame, the error, its traceback "
+                                         "file): that run's later frames have no box and are scored as misses; "
+                                         "the command then exits 1",
                                "success_auc": "mean over IoU thresholds 0, 0.05, ..., 1 of the fraction of "
                                               "scored frames with IoU above the threshold (OTB)",
                                "frames_lost": "scored frames whose box does not overlap the truth (IoU = 0)",
@@ -322,7 +355,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
     else:
         print_table(summary)
-    return 0
+    for name, seed, failure in failed:
+        print(f"polartrack benchmark: {name}, seed {seed}: PolarTrack failed at frame {failure['frame']}: "
+              f"{failure['error']} (its later frames scored as misses; traceback in "
+              f"{out_dir / f'error-{name}-seed{seed}.txt'})", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def print_table(summary: dict) -> None:
