@@ -261,7 +261,7 @@ def run(args: argparse.Namespace) -> int:
     quiet = args.no_progress
     # per sequence, per seed: (boxes, elapsed, re-acquisition, failure)
     all_seeded = run_all_polartrack(sequences, args, quiet)
-    failed = []  # (sequence, seed, failure) of the runs that raised
+    failed = []  # (sequence, seed, frame, error, traceback file) of the runs that raised
     for (spec, source, init, settings), seeded in zip(sequences, all_seeded):
         truth = as_boxes(source.truth)
         boxes, elapsed, reacq, failure0 = seeded[0]
@@ -295,7 +295,7 @@ def run(args: argparse.Namespace) -> int:
                 trace.write_text(failure["traceback"])
                 errors.append({"seed": seed, "frame": failure["frame"], "error": failure["error"],
                                "traceback": str(trace)})
-                failed.append((source.name, seed, failure))
+                failed.append((source.name, seed, failure["frame"], failure["error"], trace))
         if errors:
             results["polartrack"]["errors"] = errors
         seed_scores = [(seed, b, el, scores["polartrack"] if seed == args.seed else score_boxes(b, truth))
@@ -355,10 +355,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
     else:
         print_table(summary)
-    for name, seed, failure in failed:
-        print(f"polartrack benchmark: {name}, seed {seed}: PolarTrack failed at frame {failure['frame']}: "
-              f"{failure['error']} (its later frames scored as misses; traceback in "
-              f"{out_dir / f'error-{name}-seed{seed}.txt'})", file=sys.stderr)
+    for name, seed, frame, error, trace in failed:
+        print(f"polartrack benchmark: {name}, seed {seed}: PolarTrack failed at frame {frame}: {error} "
+              f"(its later frames scored as misses; traceback in {trace})", file=sys.stderr)
     return 1 if failed else 0
 
 
