@@ -106,6 +106,19 @@ def test_unreadable_video_and_mismatched_folder(tmp_path, capsys):
     (d / "groundtruth_rect.txt").write_text("1,1,5,5\n2,2,5,5\n")
     assert main(["eval", str(d), "--no-progress"]) == 2
     assert "2 boxes but img/ has 1 frames" in capsys.readouterr().err
+    # a black first frame: nothing to build the template from, one line (not a traceback, nor an
+    # all-zero template tracked on)
+    cv2.imwrite(str(d / "img" / "000001.png"), np.zeros((200, 200, 3), np.uint8))
+    (d / "img" / "000001.jpg").unlink()
+    (d / "groundtruth_rect.txt").write_text("90,90,20,20\n")
+    assert main(["track", str(d), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "template region is flat" in err and "start from a frame where the target is visible" in err
+    assert err.count("\n") == 1
+    (d / "img" / "000001.png").unlink()
+    noise = np.random.default_rng(0).integers(0, 256, (200, 200, 3), dtype=np.uint8)
+    cv2.imwrite(str(d / "img" / "000001.jpg"), noise)
+    (d / "groundtruth_rect.txt").write_text("90,90,20,20\n90,90,20,20\n")
     # a frame of another size: one line naming it, not the optical flow's traceback
     cv2.imwrite(str(d / "img" / "000002.jpg"), np.zeros((160, 240, 3), np.uint8))
     assert main(["track", str(d), "--no-progress"]) == 2

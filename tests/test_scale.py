@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from common.detector import FrameCache, PolarMatcher, Template
+from common.detector.template import FlatTemplateError
 from common.detector.client import make_template, one_off_grid
 from common.detector.observation import DetectorObservation
 from common.detector.resample import ResampledObservation, quantise_factor, sample_template_pmatrix
@@ -148,6 +149,18 @@ def test_a_template_boxed_at_the_frame_edge():
     assert np.array_equal(inside.pmatrix, Template.from_image(img, (320.0, 240.0)).pmatrix)
     with pytest.raises(ValueError, match="too close to the edge"):
         Template.from_image(img, (30.0, 450.0))  # the plain template alone cannot
+
+
+@pytest.mark.parametrize("k", [1.0, 2.0])
+def test_a_template_of_a_uniform_region_is_refused_at_any_factor(k):
+    """An exactly uniform first frame (a black frame) has no texture to match: FlatTemplateError
+    whether the template is the plain one (k = 1) or resampled (before, the resampled one was an
+    all-zero template the filter went on matching: p(V=1|Z) 0 on every frame); the textured control
+    builds."""
+    flat = np.zeros((480, 640, 3), np.float32)
+    with pytest.raises(FlatTemplateError, match="flat"):
+        make_template(flat, (320.0, 240.0), (310.0, 230.0, 20.0, 20.0), k)
+    assert np.any(make_template(texture(seed=6), (320.0, 240.0), (310.0, 230.0, 20.0, 20.0), k).pmatrix)
 
 
 def test_initial_factor_rule_and_quantisation():

@@ -28,7 +28,7 @@ from common.detector.frame import FrameCache
 from common.detector.matcher import PolarMatcher
 from common.detector.observation import DetectorObservation
 from common.detector.resample import ResampledObservation, footprint_inside, sample_template_pmatrix
-from common.detector.template import Template
+from common.detector.template import Template, check_textured
 
 
 def make_template(image: np.ndarray, centre: tuple[float, float], box: tuple[float, float, float, float],
@@ -40,7 +40,7 @@ def make_template(image: np.ndarray, centre: tuple[float, float], box: tuple[flo
     h, w = np.asarray(image).shape[:2]
     if k == 1.0 and footprint_inside(np.array([centre], float), 1.0, (w, h))[0]:
         return Template.from_image(image, centre, box=box)
-    return Template(pmatrix=sample_template_pmatrix(image, centre, k), centre=centre,
+    return Template(pmatrix=check_textured(sample_template_pmatrix(image, centre, k)), centre=centre,
                     box=tuple(float(v) for v in box))
 
 

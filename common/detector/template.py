@@ -15,6 +15,18 @@ from common.detector.sampler import sample_pmatrices
 FORMAT_VERSION = 1
 
 
+class FlatTemplateError(ValueError):
+    """The template's footprint holds no texture (every wavelet coefficient zero): an exactly uniform
+    region, e.g. a black first frame, gives nothing to match."""
+
+
+def check_textured(pmatrix: np.ndarray) -> np.ndarray:
+    """``pmatrix``, or FlatTemplateError when it is all zero."""
+    if not np.any(pmatrix):
+        raise FlatTemplateError("template region is flat (all-zero wavelet coefficients)")
+    return pmatrix
+
+
 @dataclass(frozen=True)
 class Template:
     pmatrix: np.ndarray
@@ -44,9 +56,7 @@ class Template:
                 f"template centre ({cx:g}, {cy:g}) is too close to the edge of the {w}x{h} image: "
                 f"it must be at least {r} px inside it"
             )
-        pm = sample_pmatrices(prep, x, y, np.array([True]))[0]
-        if not np.any(pm):
-            raise ValueError("template region is flat (all-zero wavelet coefficients)")
+        pm = check_textured(sample_pmatrices(prep, x, y, np.array([True]))[0])
         return cls(pmatrix=pm, centre=(cx, cy), box=None if box is None else tuple(float(v) for v in box))
 
     def save(self, path: str | Path) -> None:

@@ -21,7 +21,7 @@ from scipy.stats import beta as beta_dist
 
 from common.single_target.adaptation import TemplateAdapter, registered_point
 from common.detector import Template
-from common.detector.template import rotate_pmatrix
+from common.detector.template import FlatTemplateError, rotate_pmatrix
 from common.detector.client import DetectorClient, LocalDetector
 from common.single_target.motion_cue import MotionCue
 from common.single_target.reacquire import Detection, Reacquirer
@@ -200,7 +200,11 @@ class Tracker:
                              first_homography=h0, first_world_xy=world0, t0=first.time)
         k0 = scale.factor()
         detector = LocalDetector() if detector is None else detector
-        template = detector.build_template(first, centre, init_box, k0)
+        try:
+            template = detector.build_template(first, centre, init_box, k0)
+        except FlatTemplateError as exc:
+            raise InitError(f"--init {x:g},{y:g},{w:g},{h:g}: {exc}: the first frame shows nothing there to "
+                            f"match (start from a frame where the target is visible)") from None
         ad = settings.adaptation
         adapter = TemplateAdapter(template, ad.rate, ad.anchor) if ad.enabled else None
         stab = CameraMotionEstimator(settings.stabiliser) if stabilise else None
