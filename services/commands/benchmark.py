@@ -264,9 +264,17 @@ def run(args: argparse.Namespace) -> int:
     failed = []  # (sequence, seed, frame, error, traceback file) of the runs that raised
     for (spec, source, init, settings), seeded in zip(sequences, all_seeded):
         truth = as_boxes(source.truth)
-        boxes, elapsed, reacq, failure0 = seeded[0]
-        # a failed run's time covers only the frames before it raised: no rate
-        runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 and failure0 is None else None)}
+        errors = []
+        for seed, (*_, failure) in zip(range(args.seed, args.seed + args.seeds), seeded):
+            if failure is not None:
+                trace = out_dir / f"error-{source.name}-seed{seed}.txt"
+                trace.write_text(failure["traceback"])
+                errors.append({"seed": seed, "frame": failure["frame"], "error": failure["error"],
+                               "traceback": str(trace)})
+                failed.append((source.name, seed, failure["frame"], failure["error"], trace))
+        failed_seeds = {e["seed"] for e in errors}  # their time covers only the frames before: no rate
+        boxes, elapsed, reacq, _ = seeded[0]
+        runs = {"polartrack": (boxes, len(source) / elapsed if elapsed > 0 and args.seed not in failed_seeds else None)}
         failures = {}  # a peer's frames where OpenCV reported failure (it kept its last box there)
         if prefix is not None:
             with tqdm(total=len(source) * len(PEERS), unit="frame", desc=f"{source.name} peers", disable=quiet,
@@ -288,20 +296,11 @@ def run(args: argparse.Namespace) -> int:
             curves["success"].setdefault(name, []).append(sc.success)
         if reacq is not None:
             results["polartrack"]["reacquisition"] = reacq
-        errors = []
-        for seed, (*_, failure) in zip(range(args.seed, args.seed + args.seeds), seeded):
-            if failure is not None:
-                trace = out_dir / f"error-{source.name}-seed{seed}.txt"
-                trace.write_text(failure["traceback"])
-                errors.append({"seed": seed, "frame": failure["frame"], "error": failure["error"],
-                               "traceback": str(trace)})
-                failed.append((source.name, seed, failure["frame"], failure["error"], trace))
         if errors:
             results["polartrack"]["errors"] = errors
         seed_scores = [(seed, b, el, scores["polartrack"] if seed == args.seed else score_boxes(b, truth))
                        for seed, (b, el, *_) in zip(range(args.seed, args.seed + args.seeds), seeded)]
         if args.seeds > 1:
-            failed_seeds = {e["seed"] for e in errors}
             per_seed = [{"seed": seed, **sc.as_dict(),
                          "fps": round(len(source) / el, 1) if el > 0 and seed not in failed_seeds else None}
                         for seed, _, el, sc in seed_scores]
