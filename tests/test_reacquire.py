@@ -11,7 +11,7 @@ from scipy.stats import beta
 
 from common.detector.layout import SUPPORT_RADIUS_PX
 from common.detector.observation import DetectorObservation
-from common.single_target.reacquire import Detection, Reacquirer, acceptance_threshold, tail_probability
+from common.single_target.reacquire import Detection, MoverGate, Reacquirer, acceptance_threshold, tail_probability
 from common.single_target.runner import Tracker
 from common.scene.events import ExitSource, ZoomSource
 from common.settings import ReacquisitionSettings, profile_for
@@ -380,6 +380,43 @@ def test_the_strongest_mover_restarts_the_filter_once_confirmed():
     assert r3.mover_detections == 0 and r3._pending_mover is None
 
 
+class _WeakMover(_Movers):
+    """The stand-in cue with its mover at z 5: within the reach of the background's tail."""
+
+    def movers(self, s):
+        xy, z = super().movers(s)
+        z[np.argmin(np.hypot(*(self.xy - self.at).T))] = 5.0
+        return xy, z
+
+
+def test_the_movers_test_reports_what_it_decided():
+    """``mover_gate`` holds the test's figures for the searched frame: the strongest mover, its z,
+    n P from the tail model (computed here from the same boxes) and what the frame allows. A mover
+    at z 30 passes by orders of magnitude and is pending; the same mover at z 5 over the same
+    background fails (of some 11,000 background boxes, about 0.4 are expected that strong, 0.005
+    allowed): nothing pending."""
+    cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0)
+    flat = lambda k, xy, crop=None: (np.zeros((len(xy), 48)), np.ones(len(xy), bool))  # noqa: E731
+    for cue, z_top, passes in ((_Movers((300.0, 200.0)), 30.0, True), (_WeakMover((300.0, 200.0)), 5.0, False)):
+        r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+        r.observe(0.0, _state(0.0, 0.1), 1.0)
+        assert r.mover_gate is None
+        twin = type(cue)(cue.at)  # the same draws, to compute the expected figures independently
+        xy, z = twin.movers(1.0)
+        top = int(np.argmax(z))
+        far = np.hypot(*(xy - xy[top]).T) > _Scale.length_px
+        assert r.search(0.1, flat, _Scale, cue) is None
+        g = r.mover_gate
+        assert isinstance(g, MoverGate) and (g.x, g.y, g.z, g.scale) == (300.0, 200.0, z_top, 1.0)
+        assert g.false_alarms == pytest.approx(len(z) * tail_probability(z, top, far, cfg.mover_tail_quantile))
+        assert g.allowed == pytest.approx(cfg.false_alarms_per_s * cfg.assumed_interval_s)
+        assert (r._pending_mover is not None) is passes
+        if passes:
+            assert g.false_alarms < 1e-6 * g.allowed
+        else:
+            assert g.false_alarms > 10 * g.allowed
+
+
 def test_a_mover_the_matcher_cannot_score_yet_stays_pending():
     """A mover entering at the frame's left edge, where the matcher scores only hypotheses whose
     footprint (here 50 px) lies in the frame: on the confirming frame the mover itself is not
@@ -408,6 +445,54 @@ def test_a_mover_the_matcher_cannot_score_yet_stays_pending():
     # scorable point, off the mover
     best, on_mover = r._match_mover(grid_on(45.0), _Scale, 45.0, 200.0, [1.0])
     assert not on_mover and best.x == pytest.approx(50.0)
+
+
+class _Blob(_Movers):
+    """The stand-in cue whose mover's blob reads ``blob`` times the first box."""
+
+    def __init__(self, at, blob):
+        super().__init__(at)
+        self.blob = blob
+
+    def blob_scale(self, xy):
+        return self.blob
+
+
+def test_a_mover_whose_blob_no_footprint_in_the_frame_could_match_is_matched_at_its_boxes_scale():
+    """The blob reads 16x the first box: matched at it or one or two ratios below (8x, 11x, 16x),
+    the template's footprint (64 px at factor 1 / s here) would be wider than the 640x480 frame,
+    so no hypothesis anywhere in it could be scored: the blob is not the target's extent (on
+    uavdt-S1001-away it had merged with half the frame where the camera's jump was not followed,
+    docs/real-footage.md, stop 40). The mover is matched at the scale whose boxes found it (the
+    sweep's, 1x), pending there with a score, and restarts the filter on the next frame. Before,
+    it was pending at 8x with no score, which the next frame's boxes at 8x could not confirm.
+    Negative control: a blob of 4x (2x, 2.8x, 4x: a 2.8x footprint fits the frame) at a mover the
+    matcher can score only at 1x (a target entering at the frame's edge: only a small footprint is
+    in) keeps the blob's scale and waits, as before: matched at 1x it would restart the filter on
+    it at the wrong size."""
+    cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0)
+    peaked = _grid_peaked_at(302.0, 201.0)
+
+    def up_to_4x(k, xy, crop=None):
+        scores, _ = peaked(k, xy)
+        return scores, np.full(len(xy), k >= 0.25)  # _Scale: k = 1 / s
+
+    r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r.observe(0.0, _state(0.0, 0.1), 1.0)
+    assert r.search(0.1, up_to_4x, _Scale, _Blob((300.0, 200.0), 16.0)) is None
+    assert r._pending_mover.scale == 1.0 and np.isfinite(r._pending_mover.score)
+    det = r.search(0.2, up_to_4x, _Scale, _Blob((305.0, 200.0), 16.0))
+    assert det is not None and r.mover_detections == 1
+    assert (det.x, det.y) == pytest.approx((302.0, 201.0), abs=0.4)
+
+    def small_only(k, xy, crop=None):  # a target entering at the edge: only a small footprint is in
+        scores, _ = peaked(k, xy)
+        return scores, np.full(len(xy), k >= 0.9)
+
+    r2 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r2.observe(0.0, _state(0.0, 0.1), 1.0)
+    assert r2.search(0.1, small_only, _Scale, _Blob((300.0, 200.0), 4.0)) is None
+    assert r2._pending_mover.scale == pytest.approx(2.0) and np.isnan(r2._pending_mover.score)
 
 
 def test_sweep_scales_alternate_about_the_last_held_one():

@@ -35,7 +35,9 @@ confident detection to restart the filter on.
   blob spans the target and its smear along the travel, so the blob's scale
   (:meth:`~common.single_target.motion_cue.MotionCue.blob_scale`) is the largest the target
   can have; the polar matcher picks the scale among it and one and two ``scale_ratio`` below,
-  and the position and angle on a grid about the mover. It must be the strongest mover again
+  and the position and angle on a grid about the mover (a blob so large that the template's
+  footprint at none of these fits in the frame is not the target's extent: then the scale the
+  boxes found it at). It must be the strongest mover again
   on the next frame, within a target length (at that scale), before the filter restarts there,
   at the matcher's peak refined about the grid's best (the grid is a quarter of a target length
   apart, the peak narrower). While the matcher cannot score the mover itself (a target entering
@@ -63,7 +65,7 @@ import numpy as np
 from scipy.stats import beta
 
 from common.detector.layout import N_ROWS
-from common.detector.resample import quantise_factor
+from common.detector.resample import footprint_inside, quantise_factor
 from common.tracking.camera import apply_homography
 from common.tracking.likelihood import beta_by_moments
 from common.tracking.observation import GRID_ANGLES_DEG
@@ -79,6 +81,23 @@ class Detection:
     score: float
     scale: float
     """The target's apparent scale s (relative to the first box) the detection was matched at."""
+
+
+@dataclass(frozen=True)
+class MoverGate:
+    """The movers' test on one searched frame, as decided (a diagnostic, ``tools/trace_track.py``)."""
+
+    x: float
+    y: float
+    """The frame's strongest mover (image pixels)."""
+    z: float
+    """Its motion z-score."""
+    scale: float
+    """The scale its boxes were scored at."""
+    false_alarms: float
+    """Background boxes expected as strong over the frame's boxes, n P (the tail model)."""
+    allowed: float
+    """What the test allows on this frame: ``false_alarms_per_s`` times the frame interval."""
 
 
 _MIN_EXCESSES = 20
@@ -164,6 +183,8 @@ class Reacquirer:
         self._searching = False
         self._mover_sweep = 0
         self._pending_mover: Detection | None = None
+        self.mover_gate: MoverGate | None = None
+        """The movers' test on the latest searched frame (None: not searched by the movers, or no mover)."""
         self.searches = 0
         self.mover_detections = 0
         self.tiles = 0
@@ -294,6 +315,7 @@ class Reacquirer:
         dt = cfg.assumed_interval_s if self._last_time is None else max(time - self._last_time, 1e-3)
         self._last_time = float(time)
         self.searches += 1
+        self.mover_gate = None
         if movers is not None and cfg.motion_search:
             det = self._search_movers(dt, grid_at, scale_tracker, movers)
             if det is not None:
@@ -359,7 +381,10 @@ class Reacquirer:
         length = scale_tracker.length_px * s
         top = int(np.argmax(z))
         far = np.hypot(xy[:, 0] - xy[top, 0], xy[:, 1] - xy[top, 1]) > length
-        if len(z) * tail_probability(z, top, far, cfg.mover_tail_quantile) > cfg.false_alarms_per_s * dt:
+        gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s),
+                         len(z) * tail_probability(z, top, far, cfg.mover_tail_quantile), cfg.false_alarms_per_s * dt)
+        self.mover_gate = gate
+        if gate.false_alarms > gate.allowed:
             return None
         x, y = float(xy[top, 0]), float(xy[top, 1])
         if pending is not None and math.hypot(x - pending.x, y - pending.y) <= length:
@@ -382,8 +407,20 @@ class Reacquirer:
         top_s = s if blob is None else blob
         lo, hi = scale_tracker.scale_range()
         scales = sorted({float(np.clip(top_s / cfg.scale_ratio ** j, lo, hi)) for j in range(3)})
+        if not any(self._fits_the_frame(scale_tracker, v) for v in scales):
+            # a target this large could not be matched anywhere in this frame, so the blob is not the
+            # target's extent (a blob merged with the ground about it where the camera's motion was
+            # not followed): the scale whose boxes found the mover is the one to match it at
+            scales = [s]
         self._pending_mover, _ = self._match_mover(grid_at, scale_tracker, x, y, scales)
         return None
+
+    def _fits_the_frame(self, scale_tracker, s: float) -> bool:
+        """Whether the template's footprint at scale ``s`` can lie wholly in the frame somewhere (at its
+        centre): the one-off grids score only such hypotheses."""
+        k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
+        w, h = self.size
+        return bool(footprint_inside(np.array([[(w - 1) / 2, (h - 1) / 2]]), k, (w, h))[0])
 
     def _match_mover(self, grid_at, scale_tracker, x: float, y: float,
                      scales: list[float]) -> tuple[Detection, bool]:
