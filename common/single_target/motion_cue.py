@@ -28,7 +28,9 @@ night's grain), so the cue needs no calibration. The ratio is that of a target t
 at least this much motion energy against the background's Gaussian tail, capped at ``z_cap``
 (beyond it real backgrounds have heavier tails than a Gaussian). A target that stops shows no
 energy: z <= 0 gives ratio 1, and the polar match alone decides; a box on the ground the target
-left gives ratio 1 too. Where a past frame does not cover a pixel, d is 0 there (no evidence).
+left gives ratio 1 too. Where a past frame does not cover a pixel, d is 0 there (no evidence), and a
+box not wholly covered is left out of the region's statistics and scored 0 (after a fast pan or a
+jump of the camera much of the frame is ground that has just come into view).
 
 The ratio multiplies the particle's likelihood under both visibility hypotheses: it says where
 the target is likely to be, not whether the template sees it there. Added to the visible
@@ -81,6 +83,9 @@ class MotionCue:
         self._stats: tuple[float, float] | None = None
         self._grid = np.zeros((0, 2))
         self._diff: np.ndarray | None = None
+        self._seen: np.ndarray | None = None
+        """Analysis pixels both past frames saw (where d is a measurement)."""
+        self._seen_integral: np.ndarray | None = None
         self._scale = 1.0
         self.frames_with_cue = 0
 
@@ -173,6 +178,7 @@ class MotionCue:
         to_out = np.array([[f, 0, -x0 * f], [0, f, -y0 * f], [0, 0, 1.0]])
         cur, _ = _warped(grey, to_out, level, (out_w, out_h), coverage=False)
         diffs = []
+        seen = np.ones((out_h, out_w), bool)
         for _, past, h_past in pair:
             try:
                 m = to_out @ h_now @ np.linalg.inv(h_past)  # past image -> analysis pixels
@@ -180,9 +186,12 @@ class MotionCue:
             except np.linalg.LinAlgError:
                 return False
             diffs.append(np.where(covered, np.abs(cur - w), 0.0).astype(np.float32))
+            seen &= covered
         d = cv2.GaussianBlur(np.minimum(diffs[0], diffs[1]), (0, 0), _BLUR_SIGMA)
         self._integral = cv2.integral(d, sdepth=cv2.CV_64F)
+        self._seen_integral = cv2.integral(seen.astype(np.uint8), sdepth=cv2.CV_64F)
         self._diff = d
+        self._seen = seen
         self._origin = (float(x0), float(y0))
         self._factor = f
         # the background: boxes of the target's size tiling the region
@@ -210,11 +219,12 @@ class MotionCue:
         ground it crossed within the baseline; across it, the target's own extent. Their
         bounding box's short side over the first box's short side (None: no blob there)."""
         d = self._diff
-        if self._integral is None or d is None:
+        if self._integral is None or d is None or not self._seen.any():
             return None
-        med = float(np.median(d))
-        spread = max(1.4826 * float(np.median(np.abs(d - med))), _MAD_FLOOR)
-        mask = (d > med + 3.0 * spread).astype(np.uint8)
+        known = d[self._seen]  # where both past frames saw the ground (elsewhere d is no evidence)
+        med = float(np.median(known))
+        spread = max(1.4826 * float(np.median(np.abs(known - med))), _MAD_FLOOR)
+        mask = ((d > med + 3.0 * spread) & self._seen).astype(np.uint8)
         _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         f = self._factor
         px = int(round((xy[0] - self._origin[0]) * f))
@@ -232,7 +242,10 @@ class MotionCue:
         return (max(self.box_size[0] * self._scale, 2.0), max(self.box_size[1] * self._scale, 2.0))
 
     def _box_means(self, xy: np.ndarray) -> np.ndarray:
-        """Mean of d over the target-sized box centred on each image point (NaN off the region)."""
+        """Mean of d over the target-sized box centred on each image point (NaN off the region, and
+        where a past frame did not see all of the box: a box half on ground that has just come into
+        view is not a box of little motion, and counted as one it pulls the background's median
+        down and every box's z up)."""
         ii = self._integral
         hh, ww = ii.shape[0] - 1, ii.shape[1] - 1
         bw, bh = self._box()
@@ -246,7 +259,9 @@ class MotionCue:
             yb = np.clip(np.round(y + bh * f / 2), 0, hh).astype(np.int64)
         area = (xb - xa) * (yb - ya)
         s = ii[yb, xb] - ii[ya, xb] - ii[yb, xa] + ii[ya, xa]
-        ok = (area > 0) & np.isfinite(x) & np.isfinite(y)
+        cv = self._seen_integral
+        seen = cv[yb, xb] - cv[ya, xb] - cv[yb, xa] + cv[ya, xa]
+        ok = (area > 0) & np.isfinite(x) & np.isfinite(y) & (seen >= area)
         return np.where(ok, s / np.maximum(area, 1), np.nan)
 
     def z_scores(self, image_xy: np.ndarray) -> np.ndarray:

@@ -409,8 +409,8 @@ class Reacquirer:
         scales = sorted({float(np.clip(top_s / cfg.scale_ratio ** j, lo, hi)) for j in range(3)})
         if not any(self._fits_the_frame(scale_tracker, v) for v in scales):
             # a target this large could not be matched anywhere in this frame, so the blob is not the
-            # target's extent (a blob merged with the ground about it where the camera's motion was
-            # not followed): the scale whose boxes found the mover is the one to match it at
+            # target's extent (a blob merged with its surroundings): the scale whose boxes found the
+            # mover is the one to match it at, where a pending mover can be confirmed
             scales = [s]
         self._pending_mover, _ = self._match_mover(grid_at, scale_tracker, x, y, scales)
         return None
