@@ -389,6 +389,16 @@ class _WeakMover(_Movers):
         return xy, z
 
 
+class _NoMovers:
+    """A stand-in cue with no boxes to score (its history too short)."""
+
+    def movers(self, s):
+        return np.zeros((0, 2)), np.zeros(0)
+
+    def blob_scale(self, xy):
+        return None
+
+
 def test_the_movers_test_reports_what_it_decided():
     """``mover_gate`` holds the test's figures for the searched frame: the strongest mover, its z,
     n P from the tail model (computed here from the same boxes) and what the frame allows. A mover
@@ -415,6 +425,8 @@ def test_the_movers_test_reports_what_it_decided():
             assert g.false_alarms < 1e-6 * g.allowed
         else:
             assert g.false_alarms > 10 * g.allowed
+        # a searched frame without movers (no history yet, say) leaves no gate of an earlier frame
+        assert r.search(0.2, flat, _Scale, _NoMovers()) is None and r.mover_gate is None
 
 
 def test_a_mover_the_matcher_cannot_score_yet_stays_pending():
@@ -465,7 +477,7 @@ def test_a_mover_whose_blob_no_footprint_in_the_frame_could_match_is_matched_at_
     uavdt-S1001-away it had merged with half the frame where the camera's jump was not followed,
     docs/real-footage.md, stop 40). The mover is matched at the scale whose boxes found it (the
     sweep's, 1x), pending there with a score, and restarts the filter on the next frame. Before,
-    it was pending at 8x with no score, which the next frame's boxes at 8x could not confirm.
+    it was pending at 8x with no score: the matcher could not score it there on the next frame either.
     Negative control: a blob of 4x (2x, 2.8x, 4x: a 2.8x footprint fits the frame) at a mover the
     matcher can score only at 1x (a target entering at the frame's edge: only a small footprint is
     in) keeps the blob's scale and waits, as before: matched at 1x it would restart the filter on

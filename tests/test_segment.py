@@ -125,7 +125,11 @@ def test_the_tracker_re_registers_a_template_drifted_off_the_target():
     """The synthetic car tracked from its true box; on the third frame its template is replaced by
     one taken a third of a length to the car's right (as the adaptation's drift leaves it). Without
     the registration the track keeps the offset (negative control); with it the offset is gone
-    after the first segment (the template built again at the car's segment's centre)."""
+    after the first segment (the template built again at the car's segment's centre). Registered
+    whatever the score (``score_quantile`` 1): the drifted template matches its own off-centre
+    registration at 0.80-0.93 here, above the product's trigger (0.68), which this scene had met
+    only by one frame's dip to 0.665 before stop 40's motion-cue fix; the test is of what a
+    registration does, not of when it is due."""
     src = open_source("synthetic:3", n_frames=45)
     frames = list(src)
     box = frames[0].truth.box
@@ -133,7 +137,7 @@ def test_the_tracker_re_registers_a_template_drifted_off_the_target():
 
     def errors(enabled):
         st = profile_for(src, seed=0, preset="real").model_copy(update={
-            "stabilise": "on", "segment": SegmentRegistration(enabled=enabled, interval_s=0.5)})
+            "stabilise": "on", "segment": SegmentRegistration(enabled=enabled, interval_s=0.5, score_quantile=1.0)})
         t = Tracker.start(frames[0], box, st)
         out = []
         for f in frames:
@@ -150,4 +154,4 @@ def test_the_tracker_re_registers_a_template_drifted_off_the_target():
     t_off, off = errors(False)
     assert t_on.registrar.registrations >= 1 and t_off.registrar is None
     assert np.median(off[-10:]) > 0.6 * shift  # negative control: the offset stays
-    assert np.median(on[-10:]) < 0.1 * shift  # measured 16.6 px -> 0.3 px
+    assert np.median(on[-10:]) < 0.1 * shift  # measured 16.2 px -> 0.5 px

@@ -67,12 +67,18 @@ def main() -> None:
 
     runner.measure_scale_change = recorded
     src = open_source(a.sequence)
-    frames = list(src)
-    truth = list(src.truth)
-    tracker = runner.Tracker.start(frames[0], truth[0], apply_overrides(profile_for(src, seed=a.seed), a.overrides))
+    truth = src.truth
+    if not truth or truth[0] is None:
+        raise SystemExit(f"error: {a.sequence} has no ground truth for its first frame: the trace starts "
+                         "from it (a UAV123/OTB folder with groundtruth_rect.txt)")
+    settings = apply_overrides(profile_for(src, seed=a.seed), a.overrides)
+    tracker = None
     stretches: list[list] = []
     hits = []
-    for i, (frame, box) in enumerate(zip(frames, truth)):
+    for i, frame in enumerate(src):  # one frame at a time: a long sequence is not held in memory
+        box = truth[i] if i < len(truth) else None
+        if tracker is None:
+            tracker = runner.Tracker.start(frame, truth[0], settings)
         measured.clear()
         searches = tracker.reacquirer.searches if tracker.reacquirer is not None else 0
         state = tracker.step(frame)
@@ -99,7 +105,8 @@ def main() -> None:
             r = tracker.reacquirer
             if a.movers and r is not None and r.searches > searches:
                 g = r.mover_gate
-                print("    searched: " + ("no mover" if g is None else
+                print("    searched: " + (("no mover" if tracker.motion_cue is not None else "movers not searched")
+                                          if g is None else
                       f"mover {g.x:.0f},{g.y:.0f} z {g.z:.2f} at s {g.scale:.2f}: background boxes as strong "
                       f"{g.false_alarms:.3g}, allowed {g.allowed:.3g} ({'passes' if g.false_alarms <= g.allowed else 'fails'})"))
     print(f"{Path(a.sequence).name} seed {a.seed}: stretches")

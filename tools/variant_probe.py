@@ -120,6 +120,8 @@ class ColourCue(MotionCue):
         eps = 1e-3 / BINS**3
         table = ((self.h_target + eps) / (self.h_target + h_bg + 2 * eps)).astype(np.float32)
         self._integral = cv2.integral(table[_bin_index(crop)], sdepth=cv2.CV_64F)
+        self._seen = np.ones(crop.shape[:2], bool)  # a colour needs no past frame: every pixel is seen
+        self._seen_integral = cv2.integral(self._seen.astype(np.uint8), sdepth=cv2.CV_64F)
         self._origin, self._factor = (float(x0), float(y0)), f
         bw, bh = self._box()
         step = max(bw, bh) / 2
