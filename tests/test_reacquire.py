@@ -11,6 +11,7 @@ from scipy.stats import beta
 
 from common.detector.layout import SUPPORT_RADIUS_PX
 from common.detector.observation import DetectorObservation
+from common.detector.resample import quantise_factor
 from common.single_target.reacquire import Detection, MoverGate, Reacquirer, acceptance_threshold, tail_probability
 from common.single_target.runner import Tracker
 from common.scene.events import ExitSource, ZoomSource
@@ -337,6 +338,10 @@ class _Scale:
     @staticmethod
     def raw_factor(s):
         return 1.0 / s
+
+    @classmethod
+    def factor(cls, s):
+        return quantise_factor(cls.raw_factor(s), cls.cfg.steps_per_octave)
 
 
 def _grid_peaked_at(x0, y0):

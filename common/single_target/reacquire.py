@@ -65,7 +65,7 @@ import numpy as np
 from scipy.stats import beta
 
 from common.detector.layout import N_ROWS
-from common.detector.resample import footprint_inside, quantise_factor
+from common.detector.resample import footprint_inside
 from common.tracking.camera import apply_homography
 from common.tracking.likelihood import beta_by_moments
 from common.tracking.observation import GRID_ANGLES_DEG
@@ -324,7 +324,7 @@ class Reacquirer:
         pending, self._pending = self._pending, None
         if pending is not None:
             det, thr = pending
-            k = quantise_factor(scale_tracker.raw_factor(det.scale), scale_tracker.cfg.steps_per_octave)
+            k = scale_tracker.factor(det.scale)
             step = max(cfg.grid_lengths * scale_tracker.length_px * det.scale, 1.0)
             off = np.arange(-3, 4) * (step / 1.5)
             gx, gy = np.meshgrid(det.x + off, det.y + off)
@@ -338,7 +338,7 @@ class Reacquirer:
         best: tuple[Detection, float] | None = None
         for _ in range(cfg.tiles_per_frame):
             s = self.sweep_scale(*scale_tracker.scale_range())
-            k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
+            k = scale_tracker.factor(s)
             length = scale_tracker.length_px * s
             tiles = self._tiles(cfg.tile_px / k, 0.5 * length)
             if self._tile >= len(tiles):
@@ -398,7 +398,7 @@ class Reacquirer:
             self.mover_detections += 1
             # the grid is a quarter of a target length apart, the matcher's peak narrower: refine
             step = _MOVER_GRID_LENGTHS * scale_tracker.length_px * det.scale
-            k = quantise_factor(scale_tracker.raw_factor(det.scale), scale_tracker.cfg.steps_per_octave)
+            k = scale_tracker.factor(det.scale)
             return self._refine(grid_at, k, np.array([[det.x, det.y]]), np.array([det.score]), step, det.scale,
                                 _mover_crop(x, y, scale_tracker.length_px * det.scale))
         # the scale: the blob spans the target and its motion smear (and blur), so at most the
@@ -418,7 +418,7 @@ class Reacquirer:
     def _fits_the_frame(self, scale_tracker, s: float) -> bool:
         """Whether the template's footprint at scale ``s`` can lie wholly in the frame somewhere (at its
         centre): the one-off grids score only such hypotheses."""
-        k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
+        k = scale_tracker.factor(s)
         w, h = self.size
         return bool(footprint_inside(np.array([[(w - 1) / 2, (h - 1) / 2]]), k, (w, h))[0])
 
@@ -438,7 +438,7 @@ class Reacquirer:
         for s in scales:
             step = scale_tracker.length_px * s
             pts = np.array([x, y]) + step * grid
-            k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
+            k = scale_tracker.factor(s)
             scores, ok = grid_at(k, pts, _mover_crop(x, y, step))
             per = np.where(np.asarray(ok, bool)[:, None], np.asarray(scores, float), -np.inf)
             if not np.isfinite(per).any():
@@ -462,7 +462,7 @@ class Reacquirer:
             s = det.scale * r ** j
             if not lo <= s <= hi:
                 continue
-            k = quantise_factor(scale_tracker.raw_factor(s), scale_tracker.cfg.steps_per_octave)
+            k = scale_tracker.factor(s)
             step = max(0.25 * scale_tracker.length_px * s, 1.0)
             pt = np.array([[det.x, det.y]])
             cand = self._refine(grid_at, k, pt, np.array([det.score]), step, s, _crop_about(pt, _REFINE_REACH * step))
