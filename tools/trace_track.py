@@ -5,11 +5,12 @@ A diagnostic for docs/real-footage.md (stop 40). It runs the in-process tracker 
 
 - for the frames in ``--frames A:B``, one row each: the MAP estimate and the truth's centre, the
   centre error, p(V=1|Z), the box and the truth's size, the scale s and the matching factor k, the
-  target's own change of size measured from its pixels (``common.single_target.target_flow``:
+  estimate's own score, the target's own change of size measured from its pixels (``common.single_target.target_flow``:
   change of log size, its standard deviation and the points tracked; ``-`` where not measured), and
   with ``--movers`` on a searched frame the movers' test
   (:class:`common.single_target.reacquire.MoverGate`: the strongest mover, its z, the background
-  boxes expected as strong, what the frame allows);
+  boxes expected as strong, what the frame allows) and, on a frame the template's registration
+  segmented the target (``common.single_target.segment``), whether it registered;
 - for the whole run, its stretches: frames within 20 px of the truth (``hit``), beyond (``miss``),
   and without a truth (``out``: the target out of view), each with its last frame's figures;
 - the run's precision@20 (as ``polartrack benchmark`` scores it, over the frames with a truth).
@@ -81,6 +82,8 @@ def main() -> None:
             tracker = runner.Tracker.start(frame, truth[0], settings)
         measured.clear()
         searches = tracker.reacquirer.searches if tracker.reacquirer is not None else 0
+        reg = tracker.registrar
+        attempts, registrations = (reg.attempts, reg.registrations) if reg is not None else (0, 0)
         state = tracker.step(frame)
         m = state.map_estimate
         if box is None or not all(math.isfinite(v) for v in box):
@@ -101,7 +104,11 @@ def main() -> None:
         if i in rows:
             fm = measured[0] if measured else None
             flow = f"flow {fm.dlog:+.3f} sd {math.sqrt(fm.var):.3f} n {fm.points}" if fm is not None else "flow -"
-            print(f"f{i} {figures} s {tracker.scale.s:.3f} k {tracker.factor:.2f} {flow}")
+            score = "-" if state.score is None else f"{state.score:.2f}"
+            segment = ""
+            if reg is not None and reg.attempts > attempts:
+                segment = " segment: " + ("registered" if reg.registrations > registrations else "none plausible")
+            print(f"f{i} {figures} s {tracker.scale.s:.3f} k {tracker.factor:.2f} score {score} {flow}{segment}")
             r = tracker.reacquirer
             if a.movers and r is not None and r.searches > searches:
                 g = r.mover_gate
