@@ -146,3 +146,33 @@ def test_same_homographies_whatever_opencv_thread_count(tmp_path):
     out = {subprocess.run([sys.executable, str(script), str(n), tests_dir], capture_output=True, text=True,
                           check=True).stdout.strip() for n in (1, 4)}
     assert len(out) == 1
+
+
+def test_a_portrait_frame_is_analysed_as_the_same_frame_turned_landscape():
+    """The working resolution follows the frame's long side, so a camera held portrait is stabilised
+    as the same footage turned landscape: the frame pair and its 90-degree turn give the same
+    features (turned) and the same camera motion (turned). Analysed by width, as before, the
+    720 x 1280 frame was worked at 1.8 times the resolution of the 1280 x 720 one: other corners,
+    other windows and thresholds."""
+    img = _texture(720, 1280)
+    h, w = img.shape[:2]
+    g = _known_warp(w, h)
+    nxt = _warp(img, g)
+    land = CameraMotionEstimator()
+    land.start(img)
+    hom = land.update(nxt)
+    turn = lambda a: np.ascontiguousarray(np.rot90(a, -1))  # noqa: E731  clockwise: (x, y) -> (h - 1 - y, x)
+    port = CameraMotionEstimator()
+    port.start(turn(img))
+    hom_p = port.update(turn(nxt))
+    to_port = np.array([[0.0, -1.0, h - 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    pts = _grid(w, h, margin=80, step=40)
+    # the same camera motion, turned
+    moved = apply_homography(np.linalg.inv(to_port) @ hom_p @ to_port, pts)
+    assert np.abs(moved - apply_homography(hom, pts)).max() < 0.3
+    # the same corners, turned: most of the landscape frame's features have one within 1.5 px (a working
+    # pixel maps to full resolution at its corner, so turned it lands a full-resolution pixel away)
+    a = land.last_points
+    b = apply_homography(np.linalg.inv(to_port), port.last_points)
+    near = np.min(np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2), axis=1) < 1.5
+    assert len(a) >= 50 and abs(len(a) - len(b)) <= 0.1 * len(a) and near.mean() > 0.8, (len(a), len(b), near.mean())

@@ -24,8 +24,8 @@ frames give bit-identical homographies, whatever OpenCV's thread count (checked 
 8 threads; the tests run 1 and 4 in separate processes). The thread count is therefore left
 alone (``cv2.setNumThreads`` is process-wide).
 
-Cost: frames are analysed at most ``max_width_px`` wide; most of the cost is the forward and
-backward Lucas-Kanade passes over the ``max_features`` corners.
+Cost: frames are analysed at most ``max_side_px`` on their long side (landscape or portrait alike);
+most of the cost is the forward and backward Lucas-Kanade passes over the ``max_features`` corners.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field
 
 
 class StabiliserConfig(BaseModel):
@@ -75,9 +75,12 @@ class StabiliserConfig(BaseModel):
     max_interframe_scale: float = Field(1.25, gt=1)
     """Largest plausible frame-to-frame change of scale (or ratio of the two axis scales, for shear):
     beyond it the estimate is rejected as a fallback."""
-    max_width_px: int = Field(640, ge=64)
-    """Frames wider than this are analysed downscaled (the homography is rescaled to full-resolution
-    pixels)."""
+    max_side_px: int = Field(640, ge=64, validation_alias=AliasChoices("max_side_px", "max_width_px"))
+    """Frames whose long side exceeds this are analysed downscaled to it (the homography is rescaled to
+    full-resolution pixels). The long side, not the width: a portrait frame is analysed at the
+    resolution of the same frame turned landscape (with the width, a 720 x 1280 frame was worked
+    at 1.8 times the resolution of a 1280 x 720 one, its features, windows and thresholds at another
+    scale). Recorded runs' ``max_width_px`` (its name before) is read as this."""
 
 
 def grey(image: np.ndarray, factor: float = 1.0) -> np.ndarray:
@@ -131,8 +134,8 @@ class CameraMotionEstimator:
     _motion: np.ndarray = field(default_factory=lambda: np.eye(3))
 
     def start(self, image: np.ndarray) -> np.ndarray:
-        w = np.asarray(image).shape[1]
-        self._factor = min(1.0, self.config.max_width_px / float(w))
+        h, w = np.asarray(image).shape[:2]
+        self._factor = min(1.0, self.config.max_side_px / float(max(w, h)))
         self._prev = grey(image, self._factor)
         self.homography = np.eye(3)
         self._motion = np.eye(3)
