@@ -42,3 +42,44 @@ def test_every_tool_starts_and_prints_its_usage():
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     broken = {name: code for name, (code, text) in result.items() if code not in (0, None) or "usage:" not in text}
     assert broken == {}
+
+
+def test_the_turned_sequences_box_the_same_pixels(tmp_path):
+    """``tools/stress_sequences.py --kinds turn90,turn180,mirror``: each derived frame's box covers
+    the pixels the original box did, turned (within JPEG's loss; a box one pixel off does not)."""
+    import cv2
+    import numpy as np
+
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import stress_sequences
+    finally:
+        sys.path.remove(str(ROOT / "tools"))
+    seq = tmp_path / "seq"
+    (seq / "img").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    frames = []
+    for i in range(2):
+        im = cv2.resize(rng.uniform(0, 255, (12, 20, 3)).astype(np.uint8), (160, 96), interpolation=cv2.INTER_CUBIC)
+        cv2.imwrite(str(seq / "img" / f"{i + 1:06d}.png"), im)
+        frames.append(im)
+    for p in sorted((seq / "img").glob("*.png")):  # the tool reads JPEG folders, as UAV123's
+        cv2.imwrite(str(p.with_suffix(".jpg")), cv2.imread(str(p)), [cv2.IMWRITE_JPEG_QUALITY, 100])
+        p.unlink()
+    frames = [cv2.imread(str(p)) for p in sorted((seq / "img").glob("*.jpg"))]
+    (seq / "groundtruth_rect.txt").write_text("31,17,24,13\n90,40,30,20\n")
+    assert stress_sequences.main([str(seq), "--out", str(tmp_path / "out"), "--kinds", "turn90,turn180,mirror"]) == 0
+    turns = {"turn90": lambda a: cv2.rotate(a, cv2.ROTATE_90_CLOCKWISE),
+             "turn180": lambda a: cv2.rotate(a, cv2.ROTATE_180), "mirror": lambda a: cv2.flip(a, 1)}
+    boxes = [(31, 17, 24, 13), (90, 40, 30, 20)]
+    for kind, turn in turns.items():
+        out = tmp_path / "out" / f"seq-{kind}"
+        rows = [[float(v) for v in line.split(",")] for line in (out / "groundtruth_rect.txt").read_text().split()]
+        for i, ((x, y, w, h), row) in enumerate(zip(boxes, rows)):
+            im = cv2.imread(str(out / "img" / f"{i + 1:06d}.jpg")).astype(float)
+            want = turn(frames[i][y:y + h, x:x + w]).astype(float)
+            bx, by, bw, bh = (int(round(v)) for v in row)
+            assert (bh, bw) == want.shape[:2]
+            err = {(dx, dy): np.abs(im[by + dy:by + dy + bh, bx + dx:bx + dx + bw] - want).mean()
+                   for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
+            assert err[(0, 0)] < 6 and min(v for k, v in err.items() if k != (0, 0)) > 2 * err[(0, 0)], (kind, i, err)

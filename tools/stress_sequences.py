@@ -11,6 +11,10 @@ derived folders in the same layout that ``polartrack benchmark`` (and its peers)
   between frames at the same frame rate);
 - ``small``: the frames shrunk by ``--shrink`` (the target that many times smaller; the boxes
   scaled alike);
+- ``turn90``, ``turn180``, ``mirror``: the frames turned a quarter turn clockwise (a portrait
+  frame), a half turn, or flipped left to right, the boxes alike: the same footage, so a tracker
+  that treated the image's axes alike would score the same on each up to the seeds' noise (the
+  DTCWT's sampling grid and the JPEG re-encoding differ a little; docs/real-footage.md, stop 41);
 - ``away``: a virtual camera (a crop of ``--crop`` of the frame, following the truth's centre with
   a lag) that turns away from the target for ``--away-s`` seconds mid-sequence and comes back at
   another offset: the target leaves the view and re-enters elsewhere (NaN ground truth while it is
@@ -92,11 +96,25 @@ def main(argv=None) -> int:
             _write(out, ims, [None if b is None else tuple(v * f for v in b) for b in truth])
         elif kind == "away":
             _write(out, *_away(images, truth, a.crop, a.away_s, a.fps))
+        elif kind in _TURNS:
+            h, w = images[0].shape[:2]
+            code, box = _TURNS[kind]
+            _write(out, [cv2.rotate(im, code) if code is not None else cv2.flip(im, 1) for im in images],
+                   [None if b is None else box(b, w, h) for b in truth])
         else:
-            print(f"error: unknown kind {kind!r}: use night, fast, small or away", file=sys.stderr)
+            print(f"error: unknown kind {kind!r}: use night, fast, small, away, {', '.join(_TURNS)}", file=sys.stderr)
             return 2
         print(out)
     return 0
+
+
+_TURNS = {
+    # kind: (cv2.rotate code, None for the left-right flip; the box (x, y, w, h) of a w x h frame,
+    # a box covering [x, x + w) x [y, y + h) of the frame's area)
+    "turn90": (cv2.ROTATE_90_CLOCKWISE, lambda b, w, h: (h - (b[1] + b[3]), b[0], b[3], b[2])),
+    "turn180": (cv2.ROTATE_180, lambda b, w, h: (w - (b[0] + b[2]), h - (b[1] + b[3]), b[2], b[3])),
+    "mirror": (None, lambda b, w, h: (w - (b[0] + b[2]), b[1], b[2], b[3])),
+}
 
 
 def _away(images, truth, crop: float, away_s: float, fps: float):
