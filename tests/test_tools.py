@@ -59,14 +59,11 @@ def test_the_turned_sequences_box_the_same_pixels(tmp_path):
     (seq / "img").mkdir(parents=True)
     rng = np.random.default_rng(0)
     frames = []
-    for i in range(2):
+    for i in range(2):  # JPEG, as UAV123's folders (the tool reads those); compared as read back
         im = cv2.resize(rng.uniform(0, 255, (12, 20, 3)).astype(np.uint8), (160, 96), interpolation=cv2.INTER_CUBIC)
-        cv2.imwrite(str(seq / "img" / f"{i + 1:06d}.png"), im)
-        frames.append(im)
-    for p in sorted((seq / "img").glob("*.png")):  # the tool reads JPEG folders, as UAV123's
-        cv2.imwrite(str(p.with_suffix(".jpg")), cv2.imread(str(p)), [cv2.IMWRITE_JPEG_QUALITY, 100])
-        p.unlink()
-    frames = [cv2.imread(str(p)) for p in sorted((seq / "img").glob("*.jpg"))]
+        path = seq / "img" / f"{i + 1:06d}.jpg"
+        cv2.imwrite(str(path), im, [cv2.IMWRITE_JPEG_QUALITY, 100])
+        frames.append(cv2.imread(str(path)))
     (seq / "groundtruth_rect.txt").write_text("31,17,24,13\n90,40,30,20\n")
     assert stress_sequences.main([str(seq), "--out", str(tmp_path / "out"), "--kinds", "turn90,turn180,mirror"]) == 0
     turns = {"turn90": lambda a: cv2.rotate(a, cv2.ROTATE_90_CLOCKWISE),

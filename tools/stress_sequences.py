@@ -98,9 +98,8 @@ def main(argv=None) -> int:
             _write(out, *_away(images, truth, a.crop, a.away_s, a.fps))
         elif kind in _TURNS:
             h, w = images[0].shape[:2]
-            code, box = _TURNS[kind]
-            _write(out, [cv2.rotate(im, code) if code is not None else cv2.flip(im, 1) for im in images],
-                   [None if b is None else box(b, w, h) for b in truth])
+            turn, box = _TURNS[kind]
+            _write(out, [turn(im) for im in images], [None if b is None else box(b, w, h) for b in truth])
         else:
             print(f"error: unknown kind {kind!r}: use night, fast, small, away, {', '.join(_TURNS)}", file=sys.stderr)
             return 2
@@ -109,11 +108,12 @@ def main(argv=None) -> int:
 
 
 _TURNS = {
-    # kind: (cv2.rotate code, None for the left-right flip; the box (x, y, w, h) of a w x h frame,
-    # a box covering [x, x + w) x [y, y + h) of the frame's area)
-    "turn90": (cv2.ROTATE_90_CLOCKWISE, lambda b, w, h: (h - (b[1] + b[3]), b[0], b[3], b[2])),
-    "turn180": (cv2.ROTATE_180, lambda b, w, h: (w - (b[0] + b[2]), h - (b[1] + b[3]), b[2], b[3])),
-    "mirror": (None, lambda b, w, h: (w - (b[0] + b[2]), b[1], b[2], b[3])),
+    # kind: (the image turned; the box (x, y, w, h) of a w x h frame, covering [x, x + w) x [y, y + h), turned)
+    "turn90": (lambda im: cv2.rotate(im, cv2.ROTATE_90_CLOCKWISE),
+               lambda b, w, h: (h - (b[1] + b[3]), b[0], b[3], b[2])),
+    "turn180": (lambda im: cv2.rotate(im, cv2.ROTATE_180),
+                lambda b, w, h: (w - (b[0] + b[2]), h - (b[1] + b[3]), b[2], b[3])),
+    "mirror": (lambda im: cv2.flip(im, 1), lambda b, w, h: (w - (b[0] + b[2]), b[1], b[2], b[3])),
 }
 
 
