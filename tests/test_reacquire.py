@@ -69,16 +69,17 @@ def test_target_leaving_and_returning_is_reacquired(exit_source):
                  if src.frame(i).truth.visible_fraction >= 1.0)
     relocks = [i for i, r in enumerate(rows) if r[1]]
     # the car drives back in: found as the frame's strongest mover within 6 frames of being whole
-    # in the frame (the first confirms the second, restarting once the matcher can score the mover
-    # itself at the scale it was found at: measured 6, the mover found at its blob's scale, 1.36x
-    # the car's, whose footprint needs the car 4 frames further in), then, re-measured at its best
-    # scale, within the restart cloud's width (a quarter of its length, restart_pos_lengths) on the
-    # frame after the restart and within a tenth of its length from the next on (measured: 1.1 px at
-    # most on one machine; 10.8 px on the frame after the restart, then 1 px, on another, whose
-    # OpenCV takes other SIMD paths: the run's draws are the same, its floating-point sums not)
+    # in the frame (the first confirms the second, in boxes of the size that found it, restarting
+    # once the matcher can score the mover and the quarter length about it, where the car's centre
+    # may lie: measured 6, the car's centre 14 px nearer the edge than its box's on the frames
+    # before), then within the restart cloud's width (a quarter of its length, restart_pos_lengths)
+    # on the restart's frame, within two of its sigmas (half a length) on the next, while the
+    # cloud, restarted with no velocity, learns the car's 15 px a frame, and within a tenth of its
+    # length from the next on (measured: 0.9 px, 23.8 px, then 3.5 px at most; earlier code on
+    # another machine, whose OpenCV takes other SIMD paths: 10.8 px on the frame after, then 1 px)
     assert relocks and whole <= relocks[0] <= whole + 6
-    quarter = 2.5 * tenth
-    assert np.all(err[relocks[0]:relocks[0] + 2] < quarter) and np.all(err[relocks[0] + 2:] < tenth)
+    quarter, half = 2.5 * tenth, 5.0 * tenth
+    assert err[relocks[0]] < quarter and err[relocks[0] + 1] < half and np.all(err[relocks[0] + 2:] < tenth)
     assert tracker.reacquirer.detections == 1 and tracker.reacquirer.mover_detections == 1
     # while lost the estimate stays in the frame (the filter's MAP there, else where the target was
     # last held): the target left by the right edge, the estimate stays within 5 footprints of it
@@ -462,6 +463,22 @@ def test_a_mover_the_matcher_cannot_score_yet_stays_pending():
     # scorable point, off the mover
     best, on_mover = r._match_mover(grid_on(45.0), _Scale, 45.0, 200.0, [1.0])
     assert not on_mover and best.x == pytest.approx(50.0)
+    # the mover's own box centre scorable but not the quarter length (5 px) about it towards the
+    # edge, where the target's centre may lie (its boxes are half a box apart): still pending
+    # (the synthetic car's centre lay 14 px nearer the edge than its box's, and a restart there
+    # was 44 px off it); scorable all round, it restarts
+    def support_from_52(x0):
+        peaked = _grid_peaked_at(x0, 200.0)
+        return lambda k, xy, crop=None: (peaked(k, xy)[0], xy[:, 0] >= 52.0)
+
+    r3 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r3.observe(0.0, _state(0.0, 0.1), 1.0)
+    assert r3.search(0.1, support_from_52(45.0), _Scale, _Movers((45.0, 200.0))) is None
+    assert r3._match_mover(support_from_52(55.0), _Scale, 55.0, 200.0, [1.0])[1] is False  # 50 px is not
+    assert r3.search(0.2, support_from_52(55.0), _Scale, _Movers((55.0, 200.0))) is None
+    assert r3.mover_detections == 0 and r3._pending_mover.x == 55.0
+    det = r3.search(0.3, support_from_52(60.0), _Scale, _Movers((60.0, 200.0)))
+    assert det is not None and (det.x, det.y) == pytest.approx((60.0, 200.0), abs=0.4)
 
 
 class _Blob(_Movers):
@@ -510,6 +527,58 @@ def test_a_mover_whose_blob_no_footprint_in_the_frame_could_match_is_matched_at_
     r2.observe(0.0, _state(0.0, 0.1), 1.0)
     assert r2.search(0.1, small_only, _Scale, _Blob((300.0, 200.0), 4.0)) is None
     assert r2._pending_mover.scale == pytest.approx(2.0) and np.isnan(r2._pending_mover.score)
+
+
+class _MoverAtScale(_Movers):
+    """The stand-in cue whose mover stands out (z 30) only in boxes of scale ``box_scale``; in boxes
+    of any other size it is background (a box of another size takes in the target's uniform middle or
+    the ground about it); its blob reads 2x the first box."""
+
+    def __init__(self, at, box_scale):
+        super().__init__(at)
+        self.box_scale = box_scale
+
+    def movers(self, s):
+        xy, z = super().movers(s)
+        if abs(s - self.box_scale) > 1e-9:
+            z[np.argmin(np.hypot(*(self.xy - self.at).T))] = 0.0
+        return xy, z
+
+    def blob_scale(self, xy):
+        return 2.0
+
+
+def test_a_pending_mover_is_confirmed_in_boxes_of_the_size_that_found_it():
+    """The movers' boxes find a mover at the sweep's scale (1x); the matcher, offered the blob's 2x
+    and the ratios below, matches it best at 2x (its peak at factor 1/2). The next frame confirms it
+    by the same test in boxes of the same size, 1x, and the filter restarts at the matcher's 2x:
+    the boxes measure where the motion is, the matcher the target's size, and the two need not
+    agree (uavdt-S0310-away: a bus found in boxes of half its size, whose whole-bus boxes take in
+    its uniform roof, docs/real-footage.md, stop 42). Before, the confirming frame tested boxes of
+    the matcher's scale, and a mover that stands out only in boxes of the size that found it was
+    never confirmed. Negative control: a mover that, on the confirming frame, stands out only in
+    boxes of the matcher's 2x, not of 1x, is not confirmed."""
+    cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0)
+
+    def peaked_at_half(k, xy, crop=None):
+        d = np.hypot(xy[:, 0] - 302.0, xy[:, 1] - 201.0)
+        scores = np.tile(np.exp(-d / 10.0 - abs(np.log(k / 0.5)))[:, None], (1, 48))
+        return scores, np.ones(len(xy), bool)
+
+    r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r.observe(0.0, _state(0.0, 0.1), 1.0)
+    assert r.search(0.1, peaked_at_half, _Scale, _MoverAtScale((300.0, 200.0), 1.0)) is None
+    assert r.mover_gate.scale == 1.0 and r._pending_mover.scale == pytest.approx(2.0)
+    det = r.search(0.2, peaked_at_half, _Scale, _MoverAtScale((305.0, 200.0), 1.0))
+    assert det is not None and r.mover_detections == 1
+    assert r.mover_gate.scale == 1.0 and det.scale == pytest.approx(2.0)
+    assert (det.x, det.y) == pytest.approx((302.0, 201.0), abs=0.8)
+
+    r2 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r2.observe(0.0, _state(0.0, 0.1), 1.0)
+    assert r2.search(0.1, peaked_at_half, _Scale, _MoverAtScale((300.0, 200.0), 1.0)) is None
+    assert r2.search(0.2, peaked_at_half, _Scale, _MoverAtScale((305.0, 200.0), 2.0)) is None
+    assert r2.mover_detections == 0 and r2.mover_gate.false_alarms > r2.mover_gate.allowed
 
 
 def test_sweep_scales_alternate_about_the_last_held_one():

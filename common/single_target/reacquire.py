@@ -38,7 +38,9 @@ confident detection to restart the filter on.
   and the position and angle on a grid about the mover (a blob so large that the template's
   footprint at none of these fits in the frame is not the target's extent: then the scale the
   boxes found it at). It must be the strongest mover again
-  on the next frame, within a target length (at that scale), before the filter restarts there,
+  on the next frame, in boxes of the size that found it (the boxes say where the motion is, the
+  matcher what size the target is: a bus whose uniform roof shows no motion is found in boxes of
+  half its size and matched whole), within a target length, before the filter restarts there,
   at the matcher's peak refined about the grid's best (the grid is a quarter of a target length
   apart, the peak narrower). While the matcher cannot score the mover itself (a target entering
   at the frame's edge, its footprint not yet in the frame) the mover stays pending: the grid's
@@ -183,6 +185,9 @@ class Reacquirer:
         self._searching = False
         self._mover_sweep = 0
         self._pending_mover: Detection | None = None
+        self._pending_box_scale = 1.0
+        """The scale of the movers' boxes that found the pending mover (its Detection's scale is the
+        matcher's): the confirming frame repeats the same test, in boxes of the same size."""
         self.mover_gate: MoverGate | None = None
         """The movers' test on the latest searched frame (None: not searched by the movers, or no mover)."""
         self.searches = 0
@@ -371,7 +376,7 @@ class Reacquirer:
         cfg = self.cfg
         pending, self._pending_mover = self._pending_mover, None
         if pending is not None:
-            s = pending.scale  # the confirming frame looks at the scale it was found at
+            s = self._pending_box_scale  # the same test again: boxes of the size that found it
         else:
             s, n = self._scale_of_sweep(self._mover_sweep, *scale_tracker.scale_range())
             self._mover_sweep = n + 1  # one scale a frame: the movers cover the frame at once
@@ -413,6 +418,7 @@ class Reacquirer:
             # mover is the one to match it at, where a pending mover can be confirmed
             scales = [s]
         self._pending_mover, _ = self._match_mover(grid_at, scale_tracker, x, y, scales)
+        self._pending_box_scale = s
         return None
 
     def _fits_the_frame(self, scale_tracker, s: float) -> bool:
@@ -427,8 +433,10 @@ class Reacquirer:
         """The matcher's best (position, angle, scale) on a 5x5 grid a quarter of a target length
         apart about the mover at ``(x, y)``, over ``scales`` (the mover's box centre is only as
         fine as the boxes' half-box spacing); the mover itself at the first scale when the matcher
-        cannot score there. And whether the matcher could score the mover's own position at the
-        best's scale (near the frame's edge only the grid's inner points may be scorable)."""
+        cannot score there. And whether the matcher could score the mover's own position and the
+        grid's points a quarter length about it (where the target's centre may lie, the boxes being
+        half a box apart) at the best's scale: near the frame's edge only the grid's inner points may
+        be scorable, and a target entering there lies towards the edge of its box."""
         best = Detection(x, y, self.last_theta, float("nan"), float(scales[0]))
         on_mover = False
         off = np.arange(-2, 3) * _MOVER_GRID_LENGTHS
@@ -447,7 +455,9 @@ class Reacquirer:
             if not (per[i, a] <= best.score):  # higher, or nothing scored yet (NaN)
                 best = Detection(float(pts[i, 0]), float(pts[i, 1]), float(GRID_ANGLES_DEG[a]), float(per[i, a]),
                                  float(s))
-                on_mover = bool(ok[0])  # grid[0] is the mover itself
+                # grid[0] is the mover itself, grid[:9] the quarter length about it, as far as the
+                # boxes' centre (half a box apart) may lie from the target's
+                on_mover = bool(np.all(np.asarray(ok, bool)[:9]))
         return best, on_mover
 
     def _at_best_scale(self, det: Detection, grid_at, scale_tracker) -> Detection:
