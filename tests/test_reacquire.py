@@ -345,11 +345,11 @@ class _Scale:
         return quantise_factor(cls.raw_factor(s), cls.cfg.steps_per_octave)
 
 
-def _grid_peaked_at(x0, y0):
-    """Scores peaked at (x0, y0), at 45 degrees, and at factor 1 (scale 1)."""
+def _grid_peaked_at(x0, y0, k0=1.0):
+    """Scores peaked at (x0, y0), at 45 degrees, and at factor ``k0`` (scale 1 / k0)."""
     def grid_at(k, xy, crop=None):
         d = np.hypot(xy[:, 0] - x0, xy[:, 1] - y0)
-        scores = np.tile(np.exp(-d / 10.0 - abs(np.log(k)))[:, None], (1, 48))
+        scores = np.tile(np.exp(-d / 10.0 - abs(np.log(k / k0)))[:, None], (1, 48))
         scores[:, 6] += 0.1  # the best angle: 45 degrees
         return scores, np.ones(len(xy), bool)
     return grid_at
@@ -529,13 +529,13 @@ def test_a_mover_whose_blob_no_footprint_in_the_frame_could_match_is_matched_at_
     assert r2._pending_mover.scale == pytest.approx(2.0) and np.isnan(r2._pending_mover.score)
 
 
-class _MoverAtScale(_Movers):
+class _MoverAtScale(_Blob):
     """The stand-in cue whose mover stands out (z 30) only in boxes of scale ``box_scale``; in boxes
     of any other size it is background (a box of another size takes in the target's uniform middle or
     the ground about it); its blob reads 2x the first box."""
 
     def __init__(self, at, box_scale):
-        super().__init__(at)
+        super().__init__(at, 2.0)
         self.box_scale = box_scale
 
     def movers(self, s):
@@ -543,9 +543,6 @@ class _MoverAtScale(_Movers):
         if abs(s - self.box_scale) > 1e-9:
             z[np.argmin(np.hypot(*(self.xy - self.at).T))] = 0.0
         return xy, z
-
-    def blob_scale(self, xy):
-        return 2.0
 
 
 def test_a_pending_mover_is_confirmed_in_boxes_of_the_size_that_found_it():
@@ -560,11 +557,7 @@ def test_a_pending_mover_is_confirmed_in_boxes_of_the_size_that_found_it():
     boxes of the matcher's 2x, not of 1x, is not confirmed."""
     cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0)
 
-    def peaked_at_half(k, xy, crop=None):
-        d = np.hypot(xy[:, 0] - 302.0, xy[:, 1] - 201.0)
-        scores = np.tile(np.exp(-d / 10.0 - abs(np.log(k / 0.5)))[:, None], (1, 48))
-        return scores, np.ones(len(xy), bool)
-
+    peaked_at_half = _grid_peaked_at(302.0, 201.0, k0=0.5)
     r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
     r.observe(0.0, _state(0.0, 0.1), 1.0)
     assert r.search(0.1, peaked_at_half, _Scale, _MoverAtScale((300.0, 200.0), 1.0)) is None
