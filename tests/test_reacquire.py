@@ -179,6 +179,34 @@ def test_scale_follows_a_10x_zoom():
     assert rows_off[-1][2] == pytest.approx(max(first[2:]))
 
 
+@pytest.mark.parametrize("held", [True, False])
+def test_the_camera_zoom_carries_the_scale_only_while_the_target_is_held(held):
+    """While the posterior holds the target, the scale follows the camera's zoom at the target's ground
+    point (10x over 60 frames: 3.9 % a frame). While it does not (p(V=1|Z) under ``lost_p_visible``,
+    the track not yet declared lost), the estimate may be anywhere (the last held point at the
+    frame's edge, the background), the zoom there is not the target's, and the scale is kept. No
+    scale search after the first frame's, so that only the zoom (and the target's own flow, measured
+    only while held) moves it."""
+    src = ZoomSource(seed=0)
+    st = profile_for(src)
+    st = st.model_copy(update={"scale": st.scale.model_copy(update={"search_interval_s": 1e6})})
+    f0 = src.frame(0)
+    tracker = Tracker.start(f0, f0.truth.box, st)
+    for i in range(10):
+        tracker.step(src.frame(i))
+    assert tracker.reacquirer.holds(tracker.last_state) and not tracker.reacquirer.lost
+    before = tracker.scale.s
+    if not held:
+        tracker.last_state = replace(tracker.last_state, p_visible=0.2)
+    tracker.step(src.frame(10))
+    grown = max(src.frame(10).truth.box[2:]) / max(src.frame(9).truth.box[2:])
+    assert grown == pytest.approx(10 ** (1 / 59))
+    if held:
+        assert tracker.scale.s / before == pytest.approx(grown, rel=0.01)
+    else:
+        assert tracker.scale.s == before
+
+
 def test_a_target_wider_than_the_footprint_shrinking_10x():
     """The 10x zoom played backwards: the car starts 169 px long, wider than the template's whole
     footprint (128 matched px), and shrinks to 17 px. Its first frame is matched reduced to the

@@ -218,6 +218,13 @@ class Reacquirer:
             w, h = self.size
             self.last_held = (float(np.clip(x, 0, w - 1)), float(np.clip(y, 0, h - 1)))
 
+    def holds(self, state) -> bool:
+        """Whether the posterior ``state`` holds the target: p(V=1|Z) at least ``lost_p_visible`` and
+        the estimate inside the frame."""
+        m = state.map_estimate
+        w, h = self.size
+        return state.p_visible >= self.cfg.lost_p_visible and 0 <= m.image_x < w and 0 <= m.image_y < h
+
     def observe(self, time: float, state, scale: float) -> None:
         """Update the lost state from this frame's posterior ``state`` (after the filter step).
 
@@ -226,10 +233,7 @@ class Reacquirer:
         instead of starting over at the false detection."""
         cfg = self.cfg
         m = state.map_estimate
-        w, h = self.size
-        inside = 0 <= m.image_x < w and 0 <= m.image_y < h
-        held = state.p_visible >= cfg.lost_p_visible and inside
-        if held:
+        if self.holds(state):
             if self._held_since is None:
                 self._held_since = float(time)
             self._below_since = None

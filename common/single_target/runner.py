@@ -265,11 +265,15 @@ class Tracker:
             self.reacquirer.carry(_interframe(self.homography, h))
         if self.frames > 0:
             # the camera's zoom at the target is read where the target is: not at an estimate that has
-            # left the frame (the homography extrapolated there), nor while the target is lost
+            # left the frame (the homography extrapolated there), and with re-acquisition only while the
+            # posterior holds the target: an estimate it does not hold may be the last held point carried
+            # to the frame's edge, or on the background, and the zoom there is not the target's (an
+            # oblique view's can run the scale to the matcher's limit in a second, where nothing is
+            # scored: docs/real-footage.md, stop 43)
             m = self.last_state.map_estimate if self.last_state is not None else None
             w, hgt = frame.size
             seen = m is not None and 0 <= m.image_x < w and 0 <= m.image_y < hgt
-            if self.reacquirer is not None and self.reacquirer.lost:
+            if self.reacquirer is not None and not self.reacquirer.holds(self.last_state):
                 seen = False
             own = self._own_scale_change(frame) if seen else None
             self.scale.predict(self.homography, h, world if seen else None, frame.time, own)
