@@ -194,10 +194,12 @@ def test_the_camera_zoom_carries_the_scale_only_while_the_target_is_held(held):
     tracker = Tracker.start(f0, f0.truth.box, st)
     for i in range(10):
         tracker.step(src.frame(i))
-    assert tracker.reacquirer.holds(tracker.last_state) and not tracker.reacquirer.lost
+    assert tracker.reacquirer.held and not tracker.reacquirer.lost
     before = tracker.scale.s
     if not held:
-        tracker.last_state = replace(tracker.last_state, p_visible=0.2)
+        # the latest posterior not held (p(V=1|Z) 0.2), as the re-acquisition saw it
+        tracker.reacquirer.observe(tracker.last_state.time, replace(tracker.last_state, p_visible=0.2), before)
+        assert not tracker.reacquirer.held and not tracker.reacquirer.lost
     tracker.step(src.frame(10))
     grown = max(src.frame(10).truth.box[2:]) / max(src.frame(9).truth.box[2:])
     assert grown == pytest.approx(10 ** (1 / 59))

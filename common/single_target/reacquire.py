@@ -172,6 +172,8 @@ class Reacquirer:
         self.background = background
         self.size = frame_size
         self.lost = False
+        self.held = False
+        """Whether the latest posterior :meth:`observe` saw held the target (:meth:`holds`)."""
         self._below_since: float | None = None
         self.last_held: tuple[float, float] | None = None
         """Where the target was last held for good, this frame's pixels (carried with the camera)."""
@@ -233,7 +235,8 @@ class Reacquirer:
         instead of starting over at the false detection."""
         cfg = self.cfg
         m = state.map_estimate
-        if self.holds(state):
+        self.held = self.holds(state)
+        if self.held:
             if self._held_since is None:
                 self._held_since = float(time)
             self._below_since = None

@@ -273,7 +273,7 @@ class Tracker:
             m = self.last_state.map_estimate if self.last_state is not None else None
             w, hgt = frame.size
             seen = m is not None and 0 <= m.image_x < w and 0 <= m.image_y < hgt
-            if self.reacquirer is not None and not self.reacquirer.holds(self.last_state):
+            if self.reacquirer is not None and not self.reacquirer.held:
                 seen = False
             own = self._own_scale_change(frame) if seen else None
             self.scale.predict(self.homography, h, world if seen else None, frame.time, own)
