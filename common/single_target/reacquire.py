@@ -33,16 +33,17 @@ confident detection to restart the filter on.
   box >= z) = (1 - q) exp(-(z - u) / beta); over the n boxes searched the expected false alarms
   n P must stay within ``false_alarms_per_s`` times the frame interval. Its scale: the moving
   blob spans the target and its smear along the travel, so the blob's scale
-  (:meth:`~common.single_target.motion_cue.MotionCue.blob_scale`) is the largest the target
-  can have; the polar matcher picks the scale among it and one and two ``scale_ratio`` below,
-  and the position and angle on a grid about the mover (a blob so large that the template's
-  footprint at none of these fits in the frame is not the target's extent: then the scale the
-  boxes found it at). It must be the strongest mover again
-  on the next frame, in boxes of the size that found it (the boxes say where the motion is, the
-  matcher what size the target is: a bus whose uniform roof shows no motion is found in boxes of
-  half its size and matched whole), within a target length, before the filter restarts there,
-  at the matcher's peak refined about the grid's best (the grid is a quarter of a target length
-  apart, the peak narrower). While the matcher cannot score the mover itself (a target entering
+  (:meth:`~common.single_target.motion_cue.MotionCue.blob_scale`) is the largest its moving
+  parts can have; the polar matcher picks the scale among it, one and two ``scale_ratio``
+  below, and the scale the target was last held at (the likeliest, as for the tiles' sweeps: a
+  bus whose uniform roof shows no motion moves as a blob of its front half), and the position
+  and angle about the mover, each scale's grid refined to its peak before the scales are
+  compared (a blob so large that the template's footprint at none of these fits in the frame
+  is not the target's extent: then the scale the boxes found it at). It must be the strongest
+  mover again on the next frame, in boxes of the size that found it (the boxes say where the
+  motion is, the matcher what size the target is: a bus whose uniform roof shows no motion is
+  found in boxes of half its size and matched whole), within a target length, before the filter
+  restarts there, at the matcher's refined peak. While the matcher cannot score the mover itself (a target entering
   at the frame's edge, its footprint not yet in the frame) the mover stays pending: the grid's
   scorable points there lie towards the frame's inside, off the target (the synthetic exit
   sequence's restart was 16 px ahead of the car, and the filter lost it).
@@ -144,6 +145,16 @@ _REFINE_REACH = 2 * sum(_REFINE_STAGES)
 """How far the refinement reaches beyond a coarse candidate, in coarse grid steps: a coarse query
 matched on its points' box grown by this much leaves the refinement inside the same crop, so the
 three queries share one preparation."""
+
+
+def _grid_5x5() -> np.ndarray:
+    g = np.stack(np.meshgrid(np.arange(-2.0, 3.0), np.arange(-2.0, 3.0)), axis=-1).reshape(-1, 2)
+    return g[np.argsort(np.hypot(g[:, 0], g[:, 1]), kind="stable")]
+
+
+_GRID_5X5 = _grid_5x5()
+"""Offsets of a 5x5 grid in units of its spacing, nearest the centre first: of points that score
+alike, the one nearest the centre is kept (a flat or clipped score grid does not move a candidate)."""
 
 
 def _crop_about(xy: np.ndarray, reach: float) -> tuple[float, float, float, float]:
@@ -408,17 +419,15 @@ class Reacquirer:
                 self._pending_mover = replace(pending, x=x, y=y)
                 return None
             self.mover_detections += 1
-            # the grid is a quarter of a target length apart, the matcher's peak narrower: refine
-            step = _MOVER_GRID_LENGTHS * scale_tracker.length_px * det.scale
-            k = scale_tracker.factor(det.scale)
-            return self._refine(grid_at, k, np.array([[det.x, det.y]]), np.array([det.score]), step, det.scale,
-                                _mover_crop(x, y, scale_tracker.length_px * det.scale))
+            return det
         # the scale: the blob spans the target and its motion smear (and blur), so at most the
-        # blob's; the matcher picks among the ratios below it
+        # blob's, the matcher picking among the ratios below it; unless the blob is a part of the
+        # target (the motion of its uniform middle unseen): the scale it was last held at as well
         blob = movers.blob_scale((x, y))
         top_s = s if blob is None else blob
         lo, hi = scale_tracker.scale_range()
-        scales = sorted({float(np.clip(top_s / cfg.scale_ratio ** j, lo, hi)) for j in range(3)})
+        scales = sorted({float(np.clip(top_s / cfg.scale_ratio ** j, lo, hi)) for j in range(3)}
+                        | {float(np.clip(self.last_scale, lo, hi))})
         if not any(self._fits_the_frame(scale_tracker, v) for v in scales):
             # a target this large could not be matched anywhere in this frame, so the blob is not the
             # target's extent (a blob merged with its surroundings): the scale whose boxes found the
@@ -437,31 +446,30 @@ class Reacquirer:
 
     def _match_mover(self, grid_at, scale_tracker, x: float, y: float,
                      scales: list[float]) -> tuple[Detection, bool]:
-        """The matcher's best (position, angle, scale) on a 5x5 grid a quarter of a target length
-        apart about the mover at ``(x, y)``, over ``scales`` (the mover's box centre is only as
-        fine as the boxes' half-box spacing); the mover itself at the first scale when the matcher
-        cannot score there. And whether the matcher could score the mover's own position and the
-        grid's points a quarter length about it (where the target's centre may lie, the boxes being
-        half a box apart) at the best's scale: near the frame's edge only the grid's inner points may
-        be scorable, and a target entering there lies towards the edge of its box."""
+        """The matcher's best (position, angle, scale) about the mover at ``(x, y)`` over ``scales``:
+        at each scale a 5x5 grid a quarter of a target length apart (the mover's box centre is only
+        as fine as the boxes' half-box spacing) refined to the matcher's peak about its best points
+        (:meth:`_refine`: the peak is narrower than the grid, and the scales are compared at their
+        peaks, not at wherever their grids happen to fall); the mover itself at the first scale when
+        the matcher cannot score there. And whether the matcher could score the mover's own position
+        and the grid's points a quarter length about it (where the target's centre may lie, the boxes
+        being half a box apart) at the best's scale: near the frame's edge only the grid's inner
+        points may be scorable, and a target entering there lies towards the edge of its box."""
         best = Detection(x, y, self.last_theta, float("nan"), float(scales[0]))
         on_mover = False
-        off = np.arange(-2, 3) * _MOVER_GRID_LENGTHS
-        gx, gy = np.meshgrid(off, off)
-        grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
-        grid = grid[np.argsort(np.hypot(grid[:, 0], grid[:, 1]), kind="stable")]  # ties: nearest the mover
+        grid = _GRID_5X5 * _MOVER_GRID_LENGTHS
         for s in scales:
             step = scale_tracker.length_px * s
             pts = np.array([x, y]) + step * grid
             k = scale_tracker.factor(s)
-            scores, ok = grid_at(k, pts, _mover_crop(x, y, step))
+            crop = _mover_crop(x, y, step)
+            scores, ok = grid_at(k, pts, crop)
             per = np.where(np.asarray(ok, bool)[:, None], np.asarray(scores, float), -np.inf)
             if not np.isfinite(per).any():
                 continue
-            i, a = np.unravel_index(int(np.argmax(per)), per.shape)
-            if not (per[i, a] <= best.score):  # higher, or nothing scored yet (NaN)
-                best = Detection(float(pts[i, 0]), float(pts[i, 1]), float(GRID_ANGLES_DEG[a]), float(per[i, a]),
-                                 float(s))
+            cand = self._refine(grid_at, k, pts, per.max(axis=1), _MOVER_GRID_LENGTHS * step, s, crop)
+            if not (cand.score <= best.score):  # higher, or nothing scored yet (NaN)
+                best = cand
                 # grid[0] is the mover itself, grid[:9] the quarter length about it, as far as the
                 # boxes' centre (half a box apart) may lie from the target's
                 on_mover = bool(np.all(np.asarray(ok, bool)[:9]))
@@ -497,9 +505,7 @@ class Reacquirer:
         centres = xy[np.argsort(-maxima, kind="stable")[: self.cfg.refine_candidates]]
         best: Detection | None = None
         for frac in _REFINE_STAGES:
-            off = np.arange(-2, 3) * (step * frac)
-            gx, gy = np.meshgrid(off, off)
-            grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+            grid = _GRID_5X5 * (step * frac)
             pts = (centres[:, None, :] + grid[None, :, :]).reshape(-1, 2)
             scores, ok = grid_at(k, pts, crop)
             per = np.where(np.asarray(ok, bool)[:, None], np.asarray(scores, float), -np.inf)
