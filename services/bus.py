@@ -405,6 +405,7 @@ class Inbox:
         self.cv = threading.Condition()
         self.boxes: dict[str, object] = {}
         self.dropped: dict[str, int] = {}
+        self._closed: set[str] = set()
 
     def callback(self, name: str, maxlen: int | None = None):
         box = self._deque(maxlen=maxlen)
@@ -413,12 +414,21 @@ class Inbox:
 
         def put(item) -> None:
             with self.cv:
+                if name in self._closed:
+                    return
                 if box.maxlen is not None and len(box) == box.maxlen:
                     self.dropped[name] += 1
                 box.append(item)
                 self.cv.notify_all()
 
         return put
+
+    def close(self, name: str) -> None:
+        """Empty box ``name`` and keep nothing more in it: a subscription undeclared may still
+        deliver a sample or two already on Zenoh's threads, which would otherwise stay there unread."""
+        with self.cv:
+            self._closed.add(name)
+            self.boxes[name].clear()
 
     def pop(self, name: str):
         with self.cv:

@@ -193,8 +193,8 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             if listening:
                 shell.undeclare(sub)
                 shell.undeclare(sub_multi)
-                for box in inbox.boxes.values():
-                    box.clear()
+                for name in list(inbox.boxes):
+                    inbox.close(name)  # a sample already on Zenoh's threads is not kept either
                 listening = False
 
         def wait_for_estimate(upto: int) -> None:

@@ -131,3 +131,22 @@ def test_ingest_keeps_no_estimates_it_does_not_read(monkeypatch):
     assert counters["published"] == 24
     assert len(boxes_seen) == 21 and boxes_seen == [0] * 21, boxes_seen
     assert flood_sent_at_frame[-1] - flood_sent_at_frame[0] > 100  # estimates kept coming meanwhile
+
+
+def test_a_closed_inbox_box_keeps_nothing_delivered_after_it_was_closed():
+    """Zenoh may still deliver a sample that was on its threads when the subscription was undeclared
+    (ingest kept four of a flood that way under load): a closed box drops it, and the other boxes
+    keep theirs. Negative control: the same put before the close is kept."""
+    inbox = Inbox()
+    put_estimate = inbox.callback("estimate", maxlen=8)
+    put_multi = inbox.callback("multi", maxlen=8)
+    put_estimate(b"kept")
+    assert inbox.pending("estimate") == 1
+    inbox.close("estimate")
+    assert inbox.pending("estimate") == 0
+    late = threading.Thread(target=lambda: [put_estimate(b"late") for _ in range(20)])
+    late.start()
+    late.join(10)
+    put_multi(b"other")
+    assert inbox.pending("estimate") == 0 and inbox.dropped["estimate"] == 0
+    assert inbox.pending("multi") == 1 and inbox.pop("multi") == b"other"
