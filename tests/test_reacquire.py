@@ -533,8 +533,7 @@ def test_a_mover_whose_blob_no_footprint_in_the_frame_could_match_is_matched_at_
     Negative control: a blob of 4x (2x, 2.8x, 4x: a 2.8x footprint fits the frame) at a mover the
     matcher can score only at 1x (a target entering at the frame's edge: only a small footprint is
     in) keeps the blob's scale and waits, as before: matched at 1x it would restart the filter on
-    it at the wrong size (the target was last held at 2x, so that scale is offered as well, and it
-    cannot be scored there either)."""
+    it at the wrong size."""
     cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0)
     peaked = _grid_peaked_at(302.0, 201.0)
 
@@ -555,8 +554,7 @@ def test_a_mover_whose_blob_no_footprint_in_the_frame_could_match_is_matched_at_
         return scores, np.full(len(xy), k >= 0.9)
 
     r2 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
-    r2.observe(0.0, _state(0.0, 0.9), 2.0)  # last held at 2x: a scale the matcher is offered too
-    r2.observe(0.05, _state(0.05, 0.1), 2.0)
+    r2.observe(0.0, _state(0.0, 0.1), 1.0)
     assert r2.search(0.1, small_only, _Scale, _Blob((300.0, 200.0), 4.0)) is None
     assert r2._pending_mover.scale == pytest.approx(2.0) and np.isnan(r2._pending_mover.score)
 
@@ -617,23 +615,32 @@ def _part_and_whole(part_xy, whole_xy, whole_k0):
     return grid_at
 
 
-def test_a_mover_found_by_a_part_of_the_target_is_matched_at_the_scale_it_was_last_held_at():
-    """The movers' boxes find a part of a target that was last held at 3x (a bus whose uniform roof
-    shows no motion: its blob is its front half, uavdt-S0310-away, docs/real-footage.md, stop 44); the
-    blob reads 1x. The matcher is offered the blob's scale and the ratios below it and, as well, the
-    scale the target was last held at; and each scale's grid about the mover is refined to its peak
-    before the scales are compared (the whole target's peak, 10.6 px from the nearest point of the
-    3x grid, scores 0.31 there against the part's 0.6 on the 1x grid, which falls on it). The filter
-    restarts on the whole target at 3x, at its centre. Without either (the last held scale not
-    offered, or the grids compared unrefined), it restarted on the part at 1x. Negative control: a
-    target last held at 3x that now shows only the part (its size has changed) restarts at 1x on it:
-    the last held scale is offered, not imposed."""
+def _lost_after_held(cfg, held_xy, scale=3.0) -> Reacquirer:
+    """A re-acquisition that held a 3x target (a 60 x 40 px box) at ``held_xy`` and then lost it."""
+    r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r.observe(0.0, replace(_state(0.0, 0.9, *held_xy), size=(20.0 * scale, 13.0 * scale)), scale)
+    r.observe(0.05, _state(0.05, 0.1, *held_xy), scale)
+    assert r.lost and r.last_scale == scale
+    return r
+
+
+def test_a_target_that_left_the_view_found_by_a_part_is_matched_at_the_scale_it_was_last_held_at():
+    """A target last held at 3x within its length of the frame's edge (it left the view), whose
+    movers' boxes find a part when it comes back (a bus whose uniform roof shows no motion: its blob
+    is its front half, uavdt-S0310-away, docs/real-footage.md, stop 44); the blob reads 1x. The
+    matcher is offered the blob's scale and the ratios below it and, as well, the scale the target
+    was last held at; and each scale's grid about the mover is refined to its peak before the
+    scales are compared (the whole target's peak, 10.6 px from the nearest point of the 3x grid,
+    scores 0.31 there against the part's 0.6 on the 1x grid, which falls on it). The filter restarts
+    on the whole target at 3x, at its centre. Without either (the last held scale not offered, or
+    the grids compared unrefined), it restarted on the part at 1x. Negative controls: a target held
+    at 3x that now shows only the part (its size has changed) restarts at 1x on it (the last held
+    scale is offered, not imposed); and a target lost inside the view, far from the edge (it may
+    have been lost because its scale was no longer its own), is not offered its last held scale."""
     cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0)
     both = _part_and_whole((300.0, 200.0), (307.5, 207.5), 1 / 3)
-    r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
-    r.observe(0.0, _state(0.0, 0.9), 3.0)  # held at 3x
-    r.observe(0.05, _state(0.05, 0.1), 3.0)
-    assert r.lost and r.last_scale == 3.0
+    r = _lost_after_held(cfg, (30.0, 200.0))  # 30 px from the left edge, 60 px long
+    assert r.left_the_view
     assert r.search(0.1, both, _Scale, _Blob((300.0, 200.0), 1.0)) is None
     assert r._pending_mover.scale == 3.0
     det = r.search(0.2, both, _Scale, _Blob((305.0, 200.0), 1.0))
@@ -642,13 +649,17 @@ def test_a_mover_found_by_a_part_of_the_target_is_matched_at_the_scale_it_was_la
     assert det.score > 0.9  # the whole (at most 0.99) where the part gives at most 0.66
 
     part_only = _part_and_whole((300.0, 200.0), (900.0, 900.0), 1 / 3)
-    r2 = Reacquirer(cfg, (0.25, 8.08), (640, 480))
-    r2.observe(0.0, _state(0.0, 0.9), 3.0)
-    r2.observe(0.05, _state(0.05, 0.1), 3.0)
+    r2 = _lost_after_held(cfg, (30.0, 200.0))
     assert r2.search(0.1, part_only, _Scale, _Blob((300.0, 200.0), 1.0)) is None
     det = r2.search(0.2, part_only, _Scale, _Blob((305.0, 200.0), 1.0))
     assert det is not None and det.scale == pytest.approx(1.0)
     assert (det.x, det.y) == pytest.approx((300.0, 200.0), abs=1.0)
+
+    r3 = _lost_after_held(cfg, (320.0, 240.0))  # 240 px from every edge
+    assert not r3.left_the_view
+    assert r3.search(0.1, both, _Scale, _Blob((300.0, 200.0), 1.0)) is None
+    det = r3.search(0.2, both, _Scale, _Blob((305.0, 200.0), 1.0))
+    assert det is not None and det.scale == pytest.approx(1.0)
 
 
 def test_sweep_scales_alternate_about_the_last_held_one():

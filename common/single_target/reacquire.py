@@ -35,8 +35,8 @@ confident detection to restart the filter on.
   blob spans the target and its smear along the travel, so the blob's scale
   (:meth:`~common.single_target.motion_cue.MotionCue.blob_scale`) is the largest its moving
   parts can have; the polar matcher picks the scale among it, one and two ``scale_ratio``
-  below, and the scale the target was last held at (the likeliest, as for the tiles' sweeps: a
-  bus whose uniform roof shows no motion moves as a blob of its front half), and the position
+  below, and, for a target that left the view (``left_the_view``), the scale it was last held at
+  (a bus whose uniform roof shows no motion moves as a blob of its front half), and the position
   and angle about the mover, each scale's grid refined to its peak before the scales are
   compared (a blob so large that the template's footprint at none of these fits in the frame
   is not the target's extent: then the scale the boxes found it at). It must be the strongest
@@ -190,6 +190,11 @@ class Reacquirer:
         """Where the target was last held for good, this frame's pixels (carried with the camera)."""
         self.last_scale = 1.0
         self.last_theta = 0.0
+        self.left_the_view = False
+        """Whether the target was last held (for good) within its own length of the frame's edge: a
+        target lost that way left the view, and its size when it comes back is the one it was held at
+        (up to the camera's zoom); one lost inside the view may have been lost because its scale was
+        no longer its own."""
         self._tile = 0
         self._sweep = 0
         self._last_time: float | None = None
@@ -257,6 +262,9 @@ class Reacquirer:
                 self.last_held = (float(m.image_x), float(m.image_y))
                 self.last_scale = float(scale)
                 self.last_theta = float(m.theta)
+                w, h = self.size
+                length = max(state.size) if state.size is not None else 0.0
+                self.left_the_view = min(m.image_x, m.image_y, w - 1 - m.image_x, h - 1 - m.image_y) < length
             return
         self._held_since = None
         if self._below_since is None:
@@ -422,12 +430,15 @@ class Reacquirer:
             return det
         # the scale: the blob spans the target and its motion smear (and blur), so at most the
         # blob's, the matcher picking among the ratios below it; unless the blob is a part of the
-        # target (the motion of its uniform middle unseen): the scale it was last held at as well
+        # target (the motion of its uniform middle unseen): a target that left the view comes back
+        # at the size it was held at, so that scale as well
         blob = movers.blob_scale((x, y))
         top_s = s if blob is None else blob
         lo, hi = scale_tracker.scale_range()
-        scales = sorted({float(np.clip(top_s / cfg.scale_ratio ** j, lo, hi)) for j in range(3)}
-                        | {float(np.clip(self.last_scale, lo, hi))})
+        scales = {float(np.clip(top_s / cfg.scale_ratio ** j, lo, hi)) for j in range(3)}
+        if self.left_the_view:
+            scales.add(float(np.clip(self.last_scale, lo, hi)))
+        scales = sorted(scales)
         if not any(self._fits_the_frame(scale_tracker, v) for v in scales):
             # a target this large could not be matched anywhere in this frame, so the blob is not the
             # target's extent (a blob merged with its surroundings): the scale whose boxes found the
