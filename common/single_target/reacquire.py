@@ -43,10 +43,10 @@ confident detection to restart the filter on.
   mover again on the next frame, in boxes of the size that found it (the boxes say where the
   motion is, the matcher what size the target is: a bus whose uniform roof shows no motion is
   found in boxes of half its size and matched whole), within a target length, before the filter
-  restarts there, at the matcher's refined peak. While the matcher cannot score the mover itself (a target entering
-  at the frame's edge, its footprint not yet in the frame) the mover stays pending: the grid's
-  scorable points there lie towards the frame's inside, off the target (the synthetic exit
-  sequence's restart was 16 px ahead of the car, and the filter lost it).
+  restarts there, at the matcher's refined peak. While the matcher cannot score the mover itself
+  (a target entering at the frame's edge, its footprint not yet in the frame) the mover stays
+  pending: the grid's scorable points there lie towards the frame's inside, off the target (the
+  synthetic exit sequence's restart was 16 px ahead of the car, and the filter lost it).
   On real footage the template often no longer matches a target that comes back (another view,
   another size: uav123-car16's car scores 0.5 where the road scores 0.75, docs/real-footage.md),
   but a car that drives still moves over the ground.
