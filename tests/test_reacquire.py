@@ -616,7 +616,7 @@ def _part_and_whole(part_xy, whole_xy, whole_k0):
 
 
 def _lost_after_held(cfg, held_xy, scale=3.0) -> Reacquirer:
-    """A re-acquisition that held a 3x target (a 60 x 40 px box) at ``held_xy`` and then lost it."""
+    """A re-acquisition that held a 3x target (a 60 x 39 px box) at ``held_xy`` and then lost it."""
     r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
     r.observe(0.0, replace(_state(0.0, 0.9, *held_xy), size=(20.0 * scale, 13.0 * scale)), scale)
     r.observe(0.05, _state(0.05, 0.1, *held_xy), scale)
