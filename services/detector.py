@@ -115,14 +115,18 @@ def serve(bus: BusConfig, settings: DetectorSettings, stopper: Stopper) -> Count
 
         def ready(item) -> bool:
             """Whether a waiting query can be answered now (its frame and template are here, its
-            frame is gone for good, or it waited ``wait_frame_s``)."""
+            frame is gone for good, no template is held at all, or it waited ``wait_frame_s``)."""
             _query, _raw, q, _sender, deadline = item
             if time.monotonic() >= deadline or stopper.stopped:
                 return True
             if q.frame_index not in core.frames:
                 return bool(core.frames) and q.frame_index < next(iter(core.frames))  # dropped already
-            # an adapted template travels on the template key: the query asking for it may overtake it
-            return q.kind == ScoreQuery.TEMPLATE or q.kind in PART_KINDS or q.template_version in core.templates
+            # an adapted template travels on the template key: the query asking for it may overtake it;
+            # a detector holding none (restarted) waits for nothing: the querier re-sends its template
+            # only once told NO_TEMPLATE, so that must come at once, not after a wait the querier may
+            # not outlast (a restarted detector's late NO_TEMPLATE had left a run unobserved to its end)
+            return (q.kind == ScoreQuery.TEMPLATE or q.kind in PART_KINDS or q.template_version in core.templates
+                    or not core.templates)
 
         def answer(item) -> None:
             query, raw, q, sender, _deadline = item

@@ -105,6 +105,44 @@ def test_detector_survives_malformed_input(bus_with):
     assert status is not None and status.malformed >= 5  # 2 images, 1 query, wrong sizes, NaN
 
 
+def test_a_detector_holding_no_template_says_so_at_once_one_holding_some_waits_for_the_version(bus_with):
+    """A restarted detector holds no template; the tracker re-sends its own only once told
+    NO_TEMPLATE, so a detector with none answers at once (were it to wait for the version, as
+    one holding templates does for an adapted one still on its way, a NO_TEMPLATE later than the
+    tracker's query timeout left the run unobserved to its end). Waits long enough (30 s) that
+    the two answers cannot be confused."""
+    bus, session, start = bus_with
+    start("detector", "--wait-frame-s", "30")
+    assert wait_for_alive(session, bus, ["detector"], 60)
+    frame = open_source("synthetic:1", n_frames=1).frame(0)
+    publisher(session, bus.key("frame/image")).put(image_to_msg(frame.image, 1000, "0").SerializeToString(),
+                                                  attachment=ns_attachment(1000))
+    time.sleep(0.5)
+    cx, cy = frame.truth.centre
+    x, y, w, h = frame.truth.box
+
+    def at(request_id: int, version: int) -> bytes:
+        return ScoreQuery(request_id=request_id, client="t", frame_index=0, kind=ScoreQuery.AT, count=1,
+                          template_version=version, hypotheses=pack(np.array([[cx, cy, 0.0]]))).SerializeToString()
+
+    r = ask(session, bus, at(1, 1))  # ask's timeout is 5 s
+    assert r is not None and r.status == ScoreReply.NO_TEMPLATE and r.request_id == 1
+    q = ScoreQuery(request_id=2, client="t", frame_index=0, kind=ScoreQuery.TEMPLATE, count=1,
+                   hypotheses=pack(np.array([[cx, cy, x, y, w, h]])))
+    made = ask(session, bus, q.SerializeToString())
+    assert made.status == ScoreReply.OK and made.template.version == 1
+    # holding version 1, a query naming version 2 waits for it (negative control) ...
+    assert ask(session, bus, at(3, 2)) is None
+    # ... and is answered once it has come
+    adapted = made.template
+    adapted.version = 2
+    publisher(session, bus.key("template")).put(adapted.SerializeToString())
+    time.sleep(0.5)
+    r = ask(session, bus, at(4, 2))
+    assert r is not None and r.status == ScoreReply.OK and r.request_id == 4
+    assert np.frombuffer(r.scores, "<f8")[0] == pytest.approx(1.0, abs=1e-5)
+
+
 def test_tracker_survives_malformed_frame_info(bus_with, tmp_path):
     bus, session, start = bus_with
     cfg = tmp_path / "tracker.json"

@@ -114,8 +114,8 @@ class DetectorSettings(BaseModel):
     """Frames held (oldest dropped): bounds memory. Ten more than the tracker's max_lag_frames: frames
     reach the detector before the tracker learns of them"""
     wait_frame_s: float = Field(1.0, ge=0)
-    """How long a query waits for its frame's image to arrive (meanwhile the detector answers the other
-    queries)"""
+    """How long a query waits for its frame's image, or for the adapted template it names, to arrive
+    (meanwhile the detector answers the other queries)"""
     max_clients: int = Field(8, ge=1, le=1024)
     """Queriers whose prepared regions are kept (least recently used dropped): each holds up to a
     frame's pyramid (~10 MB at 1280x720)"""
