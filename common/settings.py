@@ -132,7 +132,15 @@ class ScaleSettings(BaseModel):
     long in the matched image (the footprint the P-matrix layout was designed for: a ~50 px car); one
     longer than the template's whole footprint (128 px) is reduced to it. None: never resampled."""
     max_upsample: float = Field(4.0, ge=1)
-    """Largest upsampling factor u."""
+    """Largest enlargement of the matched image while a target shrinks (k at most this or u, the
+    larger): a target first boxed 12-48 px long is followed down to 12 px, a longer one down to a
+    quarter of its first size, a shorter one (enlarged more, ``max_initial_upsample``) down to its
+    own first size."""
+    max_initial_upsample: float = Field(8.0, ge=1)
+    """Largest enlargement u of the first box's target (a first box down to ``target_size_px`` / 8 =
+    6 px long is matched at the template's design size). Enlarged less, a small target fills a small
+    part of the template's footprint, the ground about it the rest, and the match slides along the
+    road with the ground it carries (docs/real-footage.md, stop 46)."""
     min_factor: float = Field(1 / 16, gt=0, le=1)
     """Smallest overall resampling factor k (a target grown 16x beyond u is matched at 1/16 resolution,
     no less): with the upsampling, a 64x range of apparent size."""

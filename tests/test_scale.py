@@ -175,6 +175,28 @@ def test_initial_factor_rule_and_quantisation():
     assert quantise_factor(3.2) == pytest.approx(2 ** (20 / 12))
 
 
+@pytest.mark.parametrize("long_side, u, smallest_px", [
+    (5.5, 8.0, 5.5),       # enlarged to the design size (48 px) up to 8x, followed down to its own size
+    (11.0, 48 / 11, 11.0),  # enlarged more than max_upsample: followed down to its own size
+    (15.0, 3.2, 12.0),      # enlarged less: followed down to 48 / max_upsample = 12 px
+    (60.0, 1.0, 15.0),      # not enlarged: followed down to a quarter of its size
+])
+def test_a_small_first_box_is_matched_at_the_design_size_and_followed_down_to_what_the_cap_allows(long_side, u, smallest_px):
+    cfg = ScaleSettings()
+    st = ScaleTracker(cfg, (100.0, 100.0, long_side, long_side * 0.7), False, None, np.array([100.0, 100.0]), 0.0)
+    assert st.u == pytest.approx(u)
+    lo, hi = st.scale_range()
+    assert lo * long_side == pytest.approx(smallest_px)  # the smallest target the matching follows, px
+    assert st.raw_factor(lo) == pytest.approx(st.raw_factor(lo / 2))  # below it the factor is clipped
+    assert st.raw_factor(lo) > st.raw_factor(lo * 1.01)
+    assert hi == pytest.approx(u / cfg.min_factor)
+    # negative control: with the first box's enlargement capped as the tracking's is (before stop 46),
+    # a box under 12 px is matched at 4x (the 5.5 px truck at 22 px, under half the design size)
+    old = ScaleTracker(ScaleSettings(max_initial_upsample=4.0), (100.0, 100.0, long_side, long_side * 0.7), False,
+                       None, np.array([100.0, 100.0]), 0.0)
+    assert old.u == pytest.approx(4.0 if long_side < 12 else u)
+
+
 def test_scale_search_follows_a_growing_target():
     img = texture(seed=3)
     centre = (img.shape[1] / 2, img.shape[0] / 2)

@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     b = truth[0]
     length0 = max(b[2], b[3])
     cfg = ScaleSettings()
-    u = initial_factor(tuple(b), cfg.target_size_px, cfg.max_upsample)
+    u = initial_factor(tuple(b), cfg.target_size_px, max(cfg.max_upsample, cfg.max_initial_upsample))
     det = LocalDetector()
     k0 = a.factor if a.factor is not None else quantise_factor(u, cfg.steps_per_octave)
     det.build_template(wanted[0], (b[0] + b[2] / 2, b[1] + b[3] / 2), tuple(b), k0)

@@ -4,9 +4,11 @@ Settings: :class:`common.settings.ScaleSettings`. The frame is matched resampled
 ``k_t = quantise(clip(u / s_t))`` (:mod:`common.detector.resample`):
 
 - ``u``, chosen once from the initial box: a target whose long side ``L`` is shorter than
-  ``target_size_px`` is enlarged by ``target_size_px / L`` (at most ``max_upsample``), so the
-  template's fixed footprint sees a target of about the size its layout was designed for; one
-  longer than the footprint itself (``2 * SUPPORT_RADIUS_PX``) is reduced to that size too;
+  ``target_size_px`` is enlarged by ``target_size_px / L`` (at most ``max_initial_upsample``), so
+  the template's fixed footprint sees a target of about the size its layout was designed for; one
+  longer than the footprint itself (``2 * SUPPORT_RADIUS_PX``) is reduced to that size too; ``k``
+  is never more than ``max_upsample`` or ``u``, whichever is larger (a target is followed as it
+  shrinks down to ``target_size_px / max_upsample``, or its own first size where that is smaller);
 - ``s_t``, the target's size relative to the first frame:
 
   * from a metric (ground-plane) homography: ``sqrt(det J_t(w_t)) / sqrt(det J_0(w_0))`` with
@@ -80,7 +82,7 @@ class ScaleTracker:
             self.mode = "homography" if metric_homography else "search"
         if self.mode == "homography" and not metric_homography:
             self.mode = "off"  # nothing to take the scale from
-        self.u = initial_factor(init_box, cfg.target_size_px, cfg.max_upsample)
+        self.u = initial_factor(init_box, cfg.target_size_px, max(cfg.max_upsample, cfg.max_initial_upsample))
         self.length_px = max(float(init_box[2]), float(init_box[3]))
         self.s = 1.0
         self._j0 = _sqrt_det(first_homography, first_world_xy) if self.mode == "homography" else 1.0
@@ -99,9 +101,14 @@ class ScaleTracker:
         """Searches still to make whatever the score (after a restart)."""
 
     # -- the factor -------------------------------------------------------------------------
+    @property
+    def max_k(self) -> float:
+        """The largest factor k: ``max_upsample``, or ``u`` where the first box needed more."""
+        return max(self.cfg.max_upsample, self.u, 1.0)
+
     def raw_factor(self, s: float | None = None) -> float:
         s = self.s if s is None else s
-        return float(np.clip(self.u / s, self.cfg.min_factor, max(self.cfg.max_upsample, 1.0)))
+        return float(np.clip(self.u / s, self.cfg.min_factor, self.max_k))
 
     def factor(self, s: float | None = None) -> float:
         """k_t (at scale ``s``, default s_t), quantised (1.0 exactly when no resampling is needed)."""
@@ -151,7 +158,7 @@ class ScaleTracker:
 
     def scale_range(self) -> tuple[float, float]:
         """(lo, hi): the scales s_t whose factor is not clipped (beyond, the matching cannot follow)."""
-        return self.u / max(self.cfg.max_upsample, 1.0), self.u / self.cfg.min_factor
+        return self.u / self.max_k, self.u / self.cfg.min_factor
 
     def restart(self, s: float, swept: bool = True) -> None:
         """Start again at scale ``s``: no growth rate, no previous search. ``swept``: ``s`` is a
