@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common.detector.client import LocalDetector  # noqa: E402
 from common.detector.resample import quantise_factor  # noqa: E402
-from common.single_target.scale import initial_factor  # noqa: E402
+from common.single_target.scale import first_box_factor  # noqa: E402
 from common.settings import ScaleSettings  # noqa: E402
 from common.sources import open_source  # noqa: E402
 
@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     b = truth[0]
     length0 = max(b[2], b[3])
     cfg = ScaleSettings()
-    u = initial_factor(tuple(b), cfg.target_size_px, max(cfg.max_upsample, cfg.max_initial_upsample))
+    u = first_box_factor(tuple(b), cfg)
     det = LocalDetector()
     k0 = a.factor if a.factor is not None else quantise_factor(u, cfg.steps_per_octave)
     det.build_template(wanted[0], (b[0] + b[2] / 2, b[1] + b[3] / 2), tuple(b), k0)

@@ -52,6 +52,12 @@ def initial_factor(box: tuple[float, float, float, float], target_size_px: float
     return float(min(max_upsample, target_size_px / long_side))
 
 
+def first_box_factor(box: tuple[float, float, float, float], cfg) -> float:
+    """``u`` for the first box under the settings ``cfg`` (:class:`common.settings.ScaleSettings`): the
+    first box may be enlarged up to the larger of the two caps."""
+    return initial_factor(box, cfg.target_size_px, max(cfg.max_upsample, cfg.max_initial_upsample))
+
+
 def fuse_with_zoom(log_zoom: float, own_dlog: float, own_var: float, departure_q: float, dt: float,
                    time_constant_s: float) -> tuple[float, float]:
     """(change of log size, updated departure variance rate): the camera's zoom ``log_zoom`` and the
@@ -82,7 +88,7 @@ class ScaleTracker:
             self.mode = "homography" if metric_homography else "search"
         if self.mode == "homography" and not metric_homography:
             self.mode = "off"  # nothing to take the scale from
-        self.u = initial_factor(init_box, cfg.target_size_px, max(cfg.max_upsample, cfg.max_initial_upsample))
+        self.u = first_box_factor(init_box, cfg)
         self.length_px = max(float(init_box[2]), float(init_box[3]))
         self.s = 1.0
         self._j0 = _sqrt_det(first_homography, first_world_xy) if self.mode == "homography" else 1.0
