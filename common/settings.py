@@ -221,6 +221,14 @@ class ReacquisitionSettings(BaseModel):
     mover_tail_quantile: float = Field(0.9, gt=0.5, lt=1)
     """The movers' background tail is fitted beyond this quantile of the boxes' motion z-scores (an
     exponential tail over the threshold, as in peaks-over-threshold extreme-value fits)."""
+    mover_tail_without_blob: bool = True
+    """Fit the movers' background tail without the strongest mover's own moving blob (the boxes
+    overlapping it): in boxes smaller than the target its other parts are not background. A blob
+    larger than any target the frame could show (merged with its surroundings) is not left out."""
+    mover_confirm_within_target: bool = True
+    """Confirm a pending mover when the next frame's strongest mover lies within the target length it
+    was matched at (at least a box length): in boxes smaller than the target the strongest one may lie
+    on any of its parts from frame to frame."""
 
 
 class MotionCueSettings(BaseModel):

@@ -212,12 +212,11 @@ class MotionCue:
         self._stats = (med, spread)
         return True
 
-    def blob_scale(self, xy: tuple[float, float]) -> float | None:
-        """The target's scale s read off the moving blob at ``xy`` (image pixels) of the map last
-        prepared: the pixels of the difference image above the map's median by three robust
-        sigmas, connected to ``xy``, span the target and, along its direction of travel, the
-        ground it crossed within the baseline; across it, the target's own extent. Their
-        bounding box's short side over the first box's short side (None: no blob there)."""
+    def blob_box(self, xy: tuple[float, float]) -> tuple[float, float, float, float] | None:
+        """The moving blob at ``xy`` (image pixels) of the map last prepared: the pixels of the
+        difference image above the map's median by three robust sigmas, connected to ``xy`` (the
+        largest such component within three analysis pixels). Its bounding box (x0, y0, w, h),
+        image pixels; None: no blob there."""
         d = self._diff
         if self._integral is None or d is None or not self._seen.any():
             return None
@@ -235,8 +234,19 @@ class MotionCue:
         if not ids:
             return None
         i = max(ids, key=lambda i: stats[i, cv2.CC_STAT_AREA])
-        short = min(stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]) / f
-        return float(short / min(self.box_size))
+        return (float(stats[i, cv2.CC_STAT_LEFT] / f + self._origin[0]),
+                float(stats[i, cv2.CC_STAT_TOP] / f + self._origin[1]),
+                float(stats[i, cv2.CC_STAT_WIDTH] / f), float(stats[i, cv2.CC_STAT_HEIGHT] / f))
+
+    def blob_scale(self, xy: tuple[float, float]) -> float | None:
+        """The target's scale s read off the moving blob at ``xy`` (:meth:`blob_box`): the blob spans
+        the target and, along its direction of travel, the ground it crossed within the baseline;
+        across it, the target's own extent. Its bounding box's short side over the first box's short
+        side (None: no blob there)."""
+        box = self.blob_box(xy)
+        if box is None:
+            return None
+        return float(min(box[2], box[3]) / min(self.box_size))
 
     def _box(self) -> tuple[float, float]:
         return (max(self.box_size[0] * self._scale, 2.0), max(self.box_size[1] * self._scale, 2.0))

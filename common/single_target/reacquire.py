@@ -28,7 +28,9 @@ confident detection to restart the filter on.
   before the tiles, every searched frame, the whole frame's target-sized boxes are scored by their
   motion energy (cheap: box sums of one difference image), at one scale of the sweep per frame.
   The strongest mover is a candidate when the background could not produce it: the boxes away
-  from it give the background's upper tail, modelled beyond their ``mover_tail_quantile`` u as
+  from it (beyond a box length, and off its moving blob, :func:`background_boxes`: in boxes
+  smaller than the target, the target's other parts are not background) give the background's
+  upper tail, modelled beyond their ``mover_tail_quantile`` u as
   exponential (peaks over a threshold: the excess over u has mean ``beta``), so P(a background
   box >= z) = (1 - q) exp(-(z - u) / beta); over the n boxes searched the expected false alarms
   n P must stay within ``false_alarms_per_s`` times the frame interval. Its scale: the moving
@@ -42,8 +44,9 @@ confident detection to restart the filter on.
   is not the target's extent: then the scale the boxes found it at). It must be the strongest
   mover again on the next frame, in boxes of the size that found it (the boxes say where the
   motion is, the matcher what size the target is: a bus whose uniform roof shows no motion is
-  found in boxes of half its size and matched whole), within a target length, before the filter
-  restarts there, at the matcher's refined peak. While the matcher cannot score the mover itself
+  found in boxes of half its size and matched whole), within the length of the target as matched
+  (its strongest box may lie on any of its parts from frame to frame), before the filter restarts
+  there, at the matcher's refined peak. While the matcher cannot score the mover itself
   (a target entering at the frame's edge, its footprint not yet in the frame) the mover stays
   pending: the grid's scorable points there lie towards the frame's inside, off the target (the
   synthetic exit sequence's restart was 16 px ahead of the car, and the filter lost it).
@@ -128,6 +131,23 @@ def tail_probability(z: np.ndarray, top: int, far: np.ndarray, quantile: float) 
         return float(np.mean(bg >= zt))
     beta_ = float(excess.mean())
     return float((1.0 - quantile) * math.exp(-(zt - u) / beta_)) if beta_ > 0 else 0.0
+
+
+def background_boxes(xy: np.ndarray, top: int, length: float, blob=None, half_box=(0.0, 0.0)) -> np.ndarray:
+    """Which of the movers' boxes ``xy`` (n, 2) the background's tail is fitted on (bool, n): those
+    farther than ``length`` from the strongest box ``top`` and, given its moving ``blob`` (x0, y0,
+    w, h, image pixels), not overlapping it (centres beyond the blob grown by ``half_box``, the
+    boxes' half width and height). In boxes smaller than the target (a sweep's small scale) the
+    target's other parts lie beyond a box length of its strongest one, and counted as background
+    they make the target explain itself away."""
+    xy = np.asarray(xy, float)
+    far = np.hypot(xy[:, 0] - xy[top, 0], xy[:, 1] - xy[top, 1]) > length
+    if blob is not None:
+        x0, y0, w, h = blob
+        bw, bh = half_box
+        far &= ~((xy[:, 0] >= x0 - bw) & (xy[:, 0] <= x0 + w + bw)
+                 & (xy[:, 1] >= y0 - bh) & (xy[:, 1] <= y0 + h + bh))
+    return far
 
 
 def acceptance_threshold(false_alarms_per_s: float, dt: float, hypotheses: int, background,
@@ -411,14 +431,21 @@ class Reacquirer:
             return None
         length = scale_tracker.length_px * s
         top = int(np.argmax(z))
-        far = np.hypot(xy[:, 0] - xy[top, 0], xy[:, 1] - xy[top, 1]) > length
+        blob = movers.blob_box((float(xy[top, 0]), float(xy[top, 1]))) if cfg.mover_tail_without_blob else None
+        if blob is not None and not self._fits_the_frame(scale_tracker, min(blob[2], blob[3]) / min(movers.box_size)):
+            blob = None  # larger than any target the frame could show: merged with its surroundings
+        half_box = (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2)
+        far = background_boxes(xy, top, length, blob, half_box)
         gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s),
                          len(z) * tail_probability(z, top, far, cfg.mover_tail_quantile), cfg.false_alarms_per_s * dt)
         self.mover_gate = gate
         if gate.false_alarms > gate.allowed:
             return None
         x, y = float(xy[top, 0]), float(xy[top, 1])
-        if pending is not None and math.hypot(x - pending.x, y - pending.y) <= length:
+        # the same mover: within the target's length as matched (its strongest box may lie on any part)
+        reach = max(length, scale_tracker.length_px * pending.scale) \
+            if pending is not None and cfg.mover_confirm_within_target else length
+        if pending is not None and math.hypot(x - pending.x, y - pending.y) <= reach:
             det, on_mover = self._match_mover(grid_at, scale_tracker, x, y, [pending.scale])
             if not on_mover:
                 # the matcher cannot score the mover itself (its footprint is not yet in the frame):
