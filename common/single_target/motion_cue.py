@@ -83,6 +83,8 @@ class MotionCue:
         self._stats: tuple[float, float] | None = None
         self._grid = np.zeros((0, 2))
         self._diff: np.ndarray | None = None
+        self._blobs: tuple[np.ndarray, np.ndarray] | None = None
+        """The difference map's moving blobs (labels, stats), found once per map (:meth:`blob_box`)."""
         self._seen: np.ndarray | None = None
         """Analysis pixels both past frames saw (where d is a measurement)."""
         self._seen_integral: np.ndarray | None = None
@@ -191,6 +193,7 @@ class MotionCue:
         self._integral = cv2.integral(d, sdepth=cv2.CV_64F)
         self._seen_integral = cv2.integral(seen.astype(np.uint8), sdepth=cv2.CV_64F)
         self._diff = d
+        self._blobs = None
         self._seen = seen
         self._origin = (float(x0), float(y0))
         self._factor = f
@@ -220,11 +223,13 @@ class MotionCue:
         d = self._diff
         if self._integral is None or d is None or not self._seen.any():
             return None
-        known = d[self._seen]  # where both past frames saw the ground (elsewhere d is no evidence)
-        med = float(np.median(known))
-        spread = max(1.4826 * float(np.median(np.abs(known - med))), _MAD_FLOOR)
-        mask = ((d > med + 3.0 * spread) & self._seen).astype(np.uint8)
-        _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        if self._blobs is None:  # the map's statistics and components: once for all the blobs asked of it
+            known = d[self._seen]  # where both past frames saw the ground (elsewhere d is no evidence)
+            med = float(np.median(known))
+            spread = max(1.4826 * float(np.median(np.abs(known - med))), _MAD_FLOOR)
+            mask = ((d > med + 3.0 * spread) & self._seen).astype(np.uint8)
+            self._blobs = cv2.connectedComponentsWithStats(mask, connectivity=8)[1:3]
+        labels, stats = self._blobs
         f = self._factor
         px = int(round((xy[0] - self._origin[0]) * f))
         py = int(round((xy[1] - self._origin[1]) * f))
