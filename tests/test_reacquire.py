@@ -707,20 +707,21 @@ class _LargeMover(_Movers):
         return self.blob
 
 
-def test_a_large_mover_in_small_boxes_is_not_explained_away_by_its_own_parts():
+def test_a_large_mover_in_small_boxes_is_not_explained_away_by_its_own_parts(monkeypatch):
     """A target five box lengths long: with the boxes of its other parts counted as background, the
     tail makes its strongest box unremarkable (hundreds of times what the frame allows) and it is
     never a candidate; fitted without its blob, it passes by orders of magnitude and is pending.
-    Negative controls: a blob larger than any target the frame could show (640 x 480 px, 37x the
+    Negative controls: a blob larger than any target the frame could show (400 x 300 px, 23x the
     first box: the template's footprint at that scale fits nowhere in the 1280 x 720 frame, where
     the target's blob at 4.6x does; a blob merged with its surroundings, as after a camera jump,
-    stop 40) is not left out, and the test fails as before; without the setting, it fails too."""
+    stop 40) is not left out, and the test fails as before (left out, it would pass: it holds the
+    target and a good share of the background's strongest boxes); without the setting, it fails too."""
     on = ReacquisitionSettings(enabled=True, lost_after_s=0.0, mover_tail_without_blob=True)
     off = ReacquisitionSettings(enabled=True, lost_after_s=0.0, mover_tail_without_blob=False)
     flat = lambda k, xy, crop=None: (np.zeros((len(xy), 48)), np.ones(len(xy), bool))  # noqa: E731
     figures = {}
     for name, cfg, cue in (("without blob", on, _LargeMover((300.0, 200.0))),
-                           ("merged blob", on, _LargeMover((300.0, 200.0), blob=(0.0, 0.0, 640.0, 480.0))),
+                           ("merged blob", on, _LargeMover((300.0, 200.0), blob=(100.0, 50.0, 400.0, 300.0))),
                            ("with blob", off, _LargeMover((300.0, 200.0)))):
         r = Reacquirer(cfg, (0.25, 8.08), (1280, 720))
         r.observe(0.0, _state(0.0, 0.1), 1.0)
@@ -731,6 +732,12 @@ def test_a_large_mover_in_small_boxes_is_not_explained_away_by_its_own_parts():
     assert figures["without blob"][0] < 1e-6 and figures["without blob"][1], figures
     for name in ("merged blob", "with blob"):
         assert figures[name][0] > 10 and not figures[name][1], figures
+    # the guard is what keeps the merged blob: with every scale taken to fit the frame, it passes
+    monkeypatch.setattr(Reacquirer, "_fits_the_frame", lambda self, scale_tracker, s: True)
+    r = Reacquirer(on, (0.25, 8.08), (1280, 720))
+    r.observe(0.0, _state(0.0, 0.1), 1.0)
+    assert r.search(0.1, flat, _Scale, _LargeMover((300.0, 200.0), blob=(100.0, 50.0, 400.0, 300.0))) is None
+    assert r.mover_gate.false_alarms < r.mover_gate.allowed and r._pending_mover is not None
 
 
 def test_a_pending_mover_is_confirmed_anywhere_on_the_target_it_was_matched_at():

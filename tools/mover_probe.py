@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common.settings import profile_for  # noqa: E402
 from common.single_target.motion_cue import MotionCue  # noqa: E402
-from common.single_target.reacquire import tail_probability  # noqa: E402
+from common.single_target.reacquire import background_boxes, tail_probability  # noqa: E402
 from common.single_target.runner import Tracker  # noqa: E402
 from common.sources import open_source  # noqa: E402
 
@@ -59,7 +59,10 @@ def main(argv=None) -> int:
         if len(z) == 0:
             continue
         top = int(np.argmax(z))
-        far = np.hypot(*(xy - xy[top]).T) > length
+        # the tracker's rule (without its guard against a blob merged with the frame: these boxes are
+        # the target's own size, not a sweep's small one)
+        blob = probe.blob_box(tuple(xy[top])) if settings.reacquisition.mover_tail_without_blob else None
+        far = background_boxes(xy, top, length, blob, (box[2] / 2, box[3] / 2))
         false_alarms = len(z) * tail_probability(z, top, far, settings.reacquisition.mover_tail_quantile)
         centre = box[:2] + box[2:] / 2
         on_target = bool(np.hypot(*(xy[top] - centre)) < 0.5 * length)

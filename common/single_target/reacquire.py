@@ -357,7 +357,8 @@ class Reacquirer:
         ``scale_tracker`` gives the matching factor and the target's length;
         ``movers`` is the tracker's moving-target cue with this frame pushed
         (:class:`common.single_target.motion_cue.MotionCue`: ``movers(s)`` -> the frame's boxes and
-        their motion z-scores at scale s, ``blob_scale(xy)``; None: no cue, the tiles only).
+        their motion z-scores at scale s, ``blob_box(xy)``, ``blob_scale(xy)`` and ``box_size``, the
+        first box's; None: no cue, the tiles only).
 
         A candidate that passes the threshold on one frame is only pending: the next frame looks
         for it again within a target length of it (at its scale) and confirms it if it passes
@@ -418,7 +419,8 @@ class Reacquirer:
 
     def _search_movers(self, dt: float, grid_at, scale_tracker, movers) -> Detection | None:
         """The strongest mover of the frame, when the background's tail cannot explain it and it was
-        the strongest on the frame before too, within a target length (see the module docstring)."""
+        the strongest on the frame before too, within the length of the target as matched then (at
+        least a box length; see the module docstring)."""
         cfg = self.cfg
         pending, self._pending_mover = self._pending_mover, None
         if pending is not None:
