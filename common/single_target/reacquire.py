@@ -433,20 +433,19 @@ class Reacquirer:
             return None
         length = scale_tracker.length_px * s
         top = int(np.argmax(z))
-        blob = movers.blob_box((float(xy[top, 0]), float(xy[top, 1]))) if cfg.mover_tail_without_blob else None
-        if blob is not None and not self._fits_the_frame(scale_tracker, min(blob[2], blob[3]) / min(movers.box_size)):
-            blob = None  # larger than any target the frame could show: merged with its surroundings
-        half_box = (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2)
-        far = background_boxes(xy, top, length, blob, half_box)
+        own = movers.blob_box((float(xy[top, 0]), float(xy[top, 1]))) if cfg.mover_tail_without_blob else None
+        if own is not None and not self._fits_the_frame(scale_tracker, min(own[2], own[3]) / min(movers.box_size)):
+            own = None  # larger than any target the frame could show: merged with its surroundings
+        far = background_boxes(xy, top, length, own, (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2))
         gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s),
                          len(z) * tail_probability(z, top, far, cfg.mover_tail_quantile), cfg.false_alarms_per_s * dt)
         self.mover_gate = gate
         if gate.false_alarms > gate.allowed:
             return None
         x, y = float(xy[top, 0]), float(xy[top, 1])
-        # the same mover: within the target's length as matched (its strongest box may lie on any part)
-        reach = max(length, scale_tracker.length_px * pending.scale) \
-            if pending is not None and cfg.mover_confirm_within_target else length
+        reach = length  # the same mover: within the target's length as matched (its strongest box may lie on any part)
+        if pending is not None and cfg.mover_confirm_within_target:
+            reach = max(length, scale_tracker.length_px * pending.scale)
         if pending is not None and math.hypot(x - pending.x, y - pending.y) <= reach:
             det, on_mover = self._match_mover(grid_at, scale_tracker, x, y, [pending.scale])
             if not on_mover:
