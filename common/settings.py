@@ -225,6 +225,11 @@ class ReacquisitionSettings(BaseModel):
     """Fit the movers' background tail without the strongest mover's own moving blob (the boxes
     overlapping it): in boxes smaller than the target its other parts are not background. A blob
     larger than any target the frame could show (merged with its surroundings) is not left out."""
+    mover_confirm_locally: bool = True
+    """The confirming frame tests the pending mover's own hypothesis: the strongest box within the reach
+    of the pending mover, its expected false alarms counted over the boxes within that reach (the
+    hypotheses the confirmation searches), not over the whole frame's; a frame on which that fails
+    is searched as any other."""
     mover_confirm_within_target: bool = True
     """Confirm a pending mover when the next frame's strongest mover lies within the target length it
     was matched at (at least a box length): in boxes smaller than the target the strongest one may lie

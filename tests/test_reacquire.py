@@ -767,6 +767,57 @@ def test_a_pending_mover_is_confirmed_anywhere_on_the_target_it_was_matched_at()
     assert det is None and r.mover_detections == 0 and r._pending_mover.x == pytest.approx(342.0, abs=1.0)
 
 
+class _MoverOfZ(_Movers):
+    """The stand-in cue with its mover at ``at`` scored ``z_top``."""
+
+    def __init__(self, at, z_top):
+        super().__init__(at)
+        self.z_top = z_top
+
+    def movers(self, s):
+        xy, z = super().movers(s)
+        z[np.argmin(np.hypot(*(self.xy - self.at).T))] = self.z_top
+        return xy, z
+
+
+def test_a_pending_mover_is_confirmed_against_the_boxes_within_its_reach():
+    """The confirming frame tests one hypothesis, the pending mover's: the strongest box within its
+    reach, its expected false alarms counted over the boxes there (some 50 of the frame's 11,000).
+    A mover found at z 30 (pending at the matcher's peak), seen again at z 6 on the next frame:
+    confirmed, where over the whole
+    frame z 6 is within the background's tail (more expected than allowed, the frame's own test).
+    Negative controls: the frame's test (the setting off) leaves it unconfirmed and nothing pending;
+    with the mover gone from the pending place and a z 6 box elsewhere, nothing is confirmed."""
+    def faint(x0, y0):  # a peak the matcher places the mover by, too faint for the tiles to detect
+        peaked = _grid_peaked_at(x0, y0)
+        return lambda k, xy, crop=None: (0.3 * peaked(k, xy)[0], np.ones(len(xy), bool))
+
+    def run(cfg, second):
+        r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+        r.observe(0.0, _state(0.0, 0.1), 1.0)
+        assert r.search(0.1, faint(302.0, 201.0), _Scale, _Movers((300.0, 200.0))) is None
+        pending = r._pending_mover
+        assert pending is not None and (pending.x, pending.y) == pytest.approx((302.0, 201.0), abs=0.5)
+        return r, r.search(0.2, faint(307.0, 201.0), _Scale, second)
+
+    on = ReacquisitionSettings(enabled=True, lost_after_s=0.0, mover_confirm_locally=True)
+    r, det = run(on, _MoverOfZ((305.0, 200.0), 6.0))
+    assert det is not None and r.mover_detections == 1 and (det.x, det.y) == pytest.approx((307.0, 201.0), abs=0.5)
+    g = r.mover_gate
+    xy, z = _MoverOfZ((305.0, 200.0), 6.0).movers(1.0)  # the same draws
+    top = int(np.argmax(z))
+    near = np.hypot(*(xy - (302.0, 201.0)).T) <= _Scale.length_px  # about the pending mover's matched peak
+    p = tail_probability(z, top, np.hypot(*(xy - xy[top]).T) > _Scale.length_px, on.mover_tail_quantile)
+    assert (g.x, g.y, g.z) == (305.0, 200.0, 6.0) and g.false_alarms == pytest.approx(near.sum() * p)
+    assert 40 <= near.sum() <= 60 and g.false_alarms <= g.allowed < len(z) * p
+    off = ReacquisitionSettings(enabled=True, lost_after_s=0.0, mover_confirm_locally=False)
+    r, det = run(off, _MoverOfZ((305.0, 200.0), 6.0))
+    assert det is None and r.mover_detections == 0 and r._pending_mover is None
+    assert r.mover_gate.false_alarms == pytest.approx(len(z) * p) and r.mover_gate.false_alarms > r.mover_gate.allowed
+    r, det = run(on, _MoverOfZ((450.0, 300.0), 6.0))
+    assert det is None and r.mover_detections == 0 and r._pending_mover is None
+
+
 def test_sweep_scales_alternate_about_the_last_held_one():
     r = Reacquirer(ReacquisitionSettings(enabled=True, scale_steps=2, scale_ratio=2.0), (0.25, 8.08), (640, 480))
     r.last_scale = 1.0

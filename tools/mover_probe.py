@@ -71,7 +71,9 @@ def main(argv=None) -> int:
         counts["strongest_is_target"] += on_target
         counts["passed_on_target"] += passed and on_target
         counts["passed_elsewhere"] += passed and not on_target
-        print(f"frame {frame.index}: target {length:.0f} px, strongest z {z[top]:.1f} "
+        near = np.hypot(*(xy - centre).T) < 0.5 * length
+        own = float(np.max(z[near])) if near.any() else float("nan")
+        print(f"frame {frame.index}: target {length:.0f} px (its z {own:.1f}, rank {int(np.sum(z > own)) + 1}), strongest z {z[top]:.1f} "
               f"{'on the target' if on_target else 'elsewhere'}, runner-up {np.max(np.where(far, z, -np.inf)):.1f}, "
               f"n P {false_alarms:.2g} ({'passes' if passed else 'fails'})")
     print(" ".join(f"{k}={v}" for k, v in counts.items()))

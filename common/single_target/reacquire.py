@@ -46,7 +46,9 @@ confident detection to restart the filter on.
   motion is, the matcher what size the target is: a bus whose uniform roof shows no motion is
   found in boxes of half its size and matched whole), within the length of the target as matched
   (its strongest box may lie on any of its parts from frame to frame), before the filter restarts
-  there, at the matcher's refined peak. While the matcher cannot score the mover itself
+  there, at the matcher's refined peak. That second frame tests one hypothesis, the pending
+  mover's: the strongest box within its reach, its false alarms counted over the boxes there
+  (``mover_confirm_locally``), the tail still the frame's. While the matcher cannot score the mover itself
   (a target entering at the frame's edge, its footprint not yet in the frame) the mover stays
   pending: the grid's scorable points there lie towards the frame's inside, off the target (the
   synthetic exit sequence's restart was 16 px ahead of the car, and the filter lost it).
@@ -420,7 +422,9 @@ class Reacquirer:
     def _search_movers(self, dt: float, grid_at, scale_tracker, movers) -> Detection | None:
         """The strongest mover of the frame, when the background's tail cannot explain it and it was
         the strongest on the frame before too, within the length of the target as matched then (at
-        least a box length; see the module docstring)."""
+        least a box length; see the module docstring). With ``mover_confirm_locally`` the confirming
+        frame tests the pending mover's own hypothesis: the strongest box within that reach, against
+        the boxes there, not the frame's."""
         cfg = self.cfg
         pending, self._pending_mover = self._pending_mover, None
         if pending is not None:
@@ -432,30 +436,23 @@ class Reacquirer:
         if len(z) == 0:
             return None
         length = scale_tracker.length_px * s
-        top = int(np.argmax(z))
-        own = movers.blob_box((float(xy[top, 0]), float(xy[top, 1]))) if cfg.mover_tail_without_blob else None
-        if own is not None and not self._fits_the_frame(scale_tracker, min(own[2], own[3]) / min(movers.box_size)):
-            own = None  # larger than any target the frame could show: merged with its surroundings
-        far = background_boxes(xy, top, length, own, (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2))
-        gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s),
-                         len(z) * tail_probability(z, top, far, cfg.mover_tail_quantile), cfg.false_alarms_per_s * dt)
-        self.mover_gate = gate
-        if gate.false_alarms > gate.allowed:
-            return None
-        x, y = float(xy[top, 0]), float(xy[top, 1])
         reach = length  # the same mover: within the target's length as matched (its strongest box may lie on any part)
         if pending is not None and cfg.mover_confirm_within_target:
             reach = max(length, scale_tracker.length_px * pending.scale)
+        if pending is not None and cfg.mover_confirm_locally:
+            near = np.flatnonzero(np.hypot(xy[:, 0] - pending.x, xy[:, 1] - pending.y) <= reach)
+            if len(near):
+                top = int(near[np.argmax(z[near])])
+                gate = self._gate(scale_tracker, movers, xy, z, top, s, len(near), dt)
+                if gate.false_alarms <= gate.allowed:
+                    return self._confirm(grid_at, scale_tracker, pending, gate.x, gate.y)
+        top = int(np.argmax(z))
+        gate = self._gate(scale_tracker, movers, xy, z, top, s, len(z), dt)
+        if gate.false_alarms > gate.allowed:
+            return None
+        x, y = gate.x, gate.y
         if pending is not None and math.hypot(x - pending.x, y - pending.y) <= reach:
-            det, on_mover = self._match_mover(grid_at, scale_tracker, x, y, [pending.scale])
-            if not on_mover:
-                # the matcher cannot score the mover itself (its footprint is not yet in the frame):
-                # its best scorable point is displaced towards the frame's inside, off the target.
-                # Wait for the frame on which it can (it stays pending where it is now)
-                self._pending_mover = replace(pending, x=x, y=y)
-                return None
-            self.mover_detections += 1
-            return det
+            return self._confirm(grid_at, scale_tracker, pending, x, y)
         # the scale: the blob spans the target and its motion smear (and blur), so at most the
         # blob's, the matcher picking among the ratios below it; unless the blob is a part of the
         # target (the motion of its uniform middle unseen): a target that left the view comes back
@@ -475,6 +472,35 @@ class Reacquirer:
         self._pending_mover, _ = self._match_mover(grid_at, scale_tracker, x, y, scales)
         self._pending_box_scale = s
         return None
+
+    def _gate(self, scale_tracker, movers, xy: np.ndarray, z: np.ndarray, top: int, s: float, hypotheses: int,
+              dt: float) -> MoverGate:
+        """The movers' test of box ``top`` among ``hypotheses`` boxes searched: the background's tail,
+        fitted to the frame's boxes beyond a box length of it and off its moving blob, gives the
+        expected number of background boxes as strong among them (kept as :attr:`mover_gate`)."""
+        cfg = self.cfg
+        length = scale_tracker.length_px * s
+        own = movers.blob_box((float(xy[top, 0]), float(xy[top, 1]))) if cfg.mover_tail_without_blob else None
+        if own is not None and not self._fits_the_frame(scale_tracker, min(own[2], own[3]) / min(movers.box_size)):
+            own = None  # larger than any target the frame could show: merged with its surroundings
+        far = background_boxes(xy, top, length, own, (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2))
+        gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s),
+                         hypotheses * tail_probability(z, top, far, cfg.mover_tail_quantile), cfg.false_alarms_per_s * dt)
+        self.mover_gate = gate
+        return gate
+
+    def _confirm(self, grid_at, scale_tracker, pending: Detection, x: float, y: float) -> Detection | None:
+        """The pending mover, seen again at ``(x, y)``: matched there at its scale, the detection; None
+        while the matcher cannot score it (it stays pending where it is now)."""
+        det, on_mover = self._match_mover(grid_at, scale_tracker, x, y, [pending.scale])
+        if not on_mover:
+            # the matcher cannot score the mover itself (its footprint is not yet in the frame):
+            # its best scorable point is displaced towards the frame's inside, off the target.
+            # Wait for the frame on which it can (it stays pending where it is now)
+            self._pending_mover = replace(pending, x=x, y=y)
+            return None
+        self.mover_detections += 1
+        return det
 
     def _fits_the_frame(self, scale_tracker, s: float) -> bool:
         """Whether the template's footprint at scale ``s`` can lie wholly in the frame somewhere (at its
