@@ -782,7 +782,7 @@ class _MoverOfZ(_Movers):
 
 def test_a_pending_mover_is_confirmed_against_the_boxes_within_its_reach():
     """The confirming frame tests one hypothesis, the pending mover's: the strongest box within its
-    reach, its expected false alarms counted over the boxes there (some 50 of the frame's 11,000).
+    reach, its expected false alarms counted over the boxes there (50 of the frame's 11,408).
     A mover found at z 30 (pending at the matcher's peak), seen again at z 6 on the next frame:
     confirmed, where over the whole
     frame z 6 is within the background's tail (more expected than allowed, the frame's own test).

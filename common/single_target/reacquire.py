@@ -48,8 +48,8 @@ confident detection to restart the filter on.
   (its strongest box may lie on any of its parts from frame to frame), before the filter restarts
   there, at the matcher's refined peak. That second frame tests one hypothesis, the pending
   mover's: the strongest box within its reach, its false alarms counted over the boxes there
-  (``mover_confirm_locally``), the tail still the frame's. While the matcher cannot score the mover itself
-  (a target entering at the frame's edge, its footprint not yet in the frame) the mover stays
+  (``mover_confirm_locally``), the tail still the frame's. While the matcher cannot score the
+  mover itself (a target entering at the frame's edge, its footprint not yet in the frame) the mover stays
   pending: the grid's scorable points there lie towards the frame's inside, off the target (the
   synthetic exit sequence's restart was 16 px ahead of the car, and the filter lost it).
   On real footage the template often no longer matches a target that comes back (another view,
@@ -485,7 +485,8 @@ class Reacquirer:
             own = None  # larger than any target the frame could show: merged with its surroundings
         far = background_boxes(xy, top, length, own, (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2))
         gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s),
-                         hypotheses * tail_probability(z, top, far, cfg.mover_tail_quantile), cfg.false_alarms_per_s * dt)
+                         hypotheses * tail_probability(z, top, far, cfg.mover_tail_quantile),
+                         cfg.false_alarms_per_s * dt)
         self.mover_gate = gate
         return gate
 
