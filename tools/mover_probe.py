@@ -6,7 +6,7 @@ moving-target cue scores the whole frame's boxes at the target's true scale
 (:meth:`common.single_target.motion_cue.MotionCue.movers`, as the re-acquisition does). It prints
 whether the strongest box lies on the ground-truth target (within half its length), the runner-up
 away from it, and the expected false alarms n P of the re-acquisition's peaks-over-threshold test
-(:func:`common.single_target.reacquire.tail_probability`): the test passes below
+(:func:`common.single_target.reacquire.expected_false_alarms`): the test passes below
 ``false_alarms_per_s`` times the frame interval (0.005 at 10 fps).
 
     uv run python tools/mover_probe.py ../shared/data/uav123-car16 --start 120 --every 30
@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common.settings import profile_for  # noqa: E402
 from common.single_target.motion_cue import MotionCue  # noqa: E402
-from common.single_target.reacquire import background_boxes, tail_probability  # noqa: E402
+from common.single_target.reacquire import background_boxes, expected_false_alarms  # noqa: E402
 from common.single_target.runner import Tracker  # noqa: E402
 from common.sources import open_source  # noqa: E402
 
@@ -62,8 +62,9 @@ def main(argv=None) -> int:
         # the tracker's rule (without its guard against a blob merged with the frame: these boxes are
         # the target's own size, not a sweep's small one)
         blob = probe.blob_box(tuple(xy[top])) if settings.reacquisition.mover_tail_without_blob else None
-        far = background_boxes(xy, top, length, blob, (box[2] / 2, box[3] / 2))
-        false_alarms = len(z) * tail_probability(z, top, far, settings.reacquisition.mover_tail_quantile)
+        far = background_boxes(xy, top, length, blob, (box[2] / 2, box[3] / 2))  # the runner-up's boxes
+        false_alarms = expected_false_alarms(xy, z, top, length, len(z), settings.reacquisition.mover_tail_quantile,
+                                             blob, (box[2] / 2, box[3] / 2))
         centre = box[:2] + box[2:] / 2
         on_target = bool(np.hypot(*(xy[top] - centre)) < 0.5 * length)
         passed = false_alarms <= settings.reacquisition.false_alarms_per_s / src.fps
@@ -72,8 +73,9 @@ def main(argv=None) -> int:
         counts["passed_on_target"] += passed and on_target
         counts["passed_elsewhere"] += passed and not on_target
         near = np.hypot(*(xy - centre).T) < 0.5 * length
-        own = float(np.max(z[near])) if near.any() else float("nan")
-        print(f"frame {frame.index}: target {length:.0f} px (its z {own:.1f}, rank {int(np.sum(z > own)) + 1}), strongest z {z[top]:.1f} "
+        own = (f"its z {np.max(z[near]):.1f}, rank {int(np.sum(z > np.max(z[near]))) + 1}" if near.any()
+               else "no box on it")
+        print(f"frame {frame.index}: target {length:.0f} px ({own}), strongest z {z[top]:.1f} "
               f"{'on the target' if on_target else 'elsewhere'}, runner-up {np.max(np.where(far, z, -np.inf)):.1f}, "
               f"n P {false_alarms:.2g} ({'passes' if passed else 'fails'})")
     print(" ".join(f"{k}={v}" for k, v in counts.items()))

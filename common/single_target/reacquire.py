@@ -152,6 +152,15 @@ def background_boxes(xy: np.ndarray, top: int, length: float, blob=None, half_bo
     return far
 
 
+def expected_false_alarms(xy: np.ndarray, z: np.ndarray, top: int, length: float, hypotheses: int,
+                          quantile: float, blob=None, half_box=(0.0, 0.0)) -> float:
+    """The movers' test of box ``top``: the background boxes expected as strong among ``hypotheses``
+    boxes searched, n P, the tail fitted beyond ``quantile`` on :func:`background_boxes` (``length``,
+    ``blob``, ``half_box`` as there)."""
+    far = background_boxes(xy, top, length, blob, half_box)
+    return hypotheses * tail_probability(z, top, far, quantile)
+
+
 def acceptance_threshold(false_alarms_per_s: float, dt: float, hypotheses: int, background,
                          orientations: int = N_ROWS) -> float:
     """The score the background exceeds with probability ``false_alarms_per_s * dt / (hypotheses *
@@ -483,9 +492,9 @@ class Reacquirer:
         own = movers.blob_box((float(xy[top, 0]), float(xy[top, 1]))) if cfg.mover_tail_without_blob else None
         if own is not None and not self._fits_the_frame(scale_tracker, min(own[2], own[3]) / min(movers.box_size)):
             own = None  # larger than any target the frame could show: merged with its surroundings
-        far = background_boxes(xy, top, length, own, (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2))
-        gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s),
-                         hypotheses * tail_probability(z, top, far, cfg.mover_tail_quantile),
+        n_p = expected_false_alarms(xy, z, top, length, hypotheses, cfg.mover_tail_quantile, own,
+                                    (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2))
+        gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s), n_p,
                          cfg.false_alarms_per_s * dt)
         self.mover_gate = gate
         return gate
