@@ -268,6 +268,34 @@ def test_lost_after_the_stated_seconds_whatever_the_frame_rate(fps):
     assert r2.lost
 
 
+@pytest.mark.parametrize("fps, interval, gap", [(10.0, 1 / 15, 1), (30.0, 1 / 15, 2), (30.0, 0.0, 1)])
+def test_the_tiles_are_searched_once_a_tile_interval_whatever_the_frame_rate(fps, interval, gap, monkeypatch):
+    """While lost, the tiles are searched at most once every ``tile_interval_s`` of footage: every
+    frame at 10 fps, every other frame at 30 fps (1/15 s), and each tile's threshold allows the
+    false alarms of the whole time since the tile before (the same false alarms a second at any
+    rate); with no interval (negative control) every searched frame at 30 fps, each on one frame's
+    time. A frame that ends a sweep of the frame searches no tile and leaves the budget to the next."""
+    cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0, tile_interval_s=interval)
+    r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
+    r.observe(0.0, _state(0.0, 0.1), 1.0)
+    budgets = []
+    threshold = Reacquirer._threshold
+    monkeypatch.setattr(Reacquirer, "_threshold", lambda self, dt, maxima: budgets.append(dt) or threshold(self, dt, maxima))
+    searched = []  # the frames on which a tile was searched
+    background = _grid_peaked_at(-1e4, -1e4)  # nothing in the frame: no detection
+    for i in range(1, 3 * int(fps) + 1):
+        before = r.tiles
+        assert r.search(i / fps, background, _Scale, None) is None
+        if r.tiles > before:
+            searched.append(i)
+    gaps = np.diff(searched)
+    assert set(gaps) <= {gap, gap + 1} and np.sum(gaps == gap) >= 0.7 * len(gaps)  # gap + 1: over a sweep's end
+    assert r.searches == 3 * fps and r.tiles == len(searched) == len(budgets)
+    assert budgets[0] == cfg.assumed_interval_s  # the first search: no frame interval measured yet
+    expected = gaps / fps if interval > 0 else np.full(len(gaps), 1 / fps)  # without: the last frame's time
+    assert budgets[1:] == pytest.approx(list(expected), abs=1e-9)
+
+
 @pytest.mark.parametrize("outside", [True, False])
 def test_a_lost_track_reports_where_it_was_last_held_not_the_drifting_cloud(exit_source, outside):
     """Once the filter's cloud has left the frame, the estimate is the point where the target was

@@ -18,12 +18,15 @@ confident detection to restart the filter on.
 - **Search** (only while lost): the frame is cut into square tiles of ``tile_px`` matched pixels
   (the resampled image the template is matched on), overlapping by a target length, visited
   nearest-first from where the target was last held, then in a stride that does not chase a
-  moving target, ``tiles_per_frame`` a frame; each tile is scored on a grid of candidate centres
+  moving target, ``tiles_per_frame`` a frame at most every ``tile_interval_s`` of footage (every
+  other frame at 30 fps); each tile is scored on a grid of candidate centres
   ``grid_lengths`` target lengths apart at all 48 angles, at one scale per sweep of the frame
   (every other sweep at the last held scale, the others ``scale_ratio`` smaller and larger, ...
   to ``scale_steps`` ratios either way, within the range the matching can follow). The CPU per frame is
   bounded by the tile size: one prepared ``tile_px`` square crop and its candidates (the
-  refinement of the tile's best candidates is matched on the same crop, prepared once).
+  refinement of the tile's best candidates is matched on the same crop, prepared once); the CPU
+  per second of footage by ``tile_interval_s``. A frame that ends a sweep searches no tile and
+  leaves the budget to the next.
 - **Movers** (where the tracker has the moving-target cue, :mod:`common.single_target.motion_cue`):
   before the tiles, every searched frame, the whole frame's target-sized boxes are scored by their
   motion energy (cheap: box sums of one difference image), at one scale of the sweep per frame.
@@ -229,6 +232,7 @@ class Reacquirer:
         self._tile = 0
         self._sweep = 0
         self._last_time: float | None = None
+        self._last_tile_time: float | None = None
         self._pending: tuple[Detection, float] | None = None
         self._held_since: float | None = None
         self._searching = False
@@ -399,6 +403,13 @@ class Reacquirer:
                 if again.score >= thr:
                     return self._at_best_scale(again, grid_at, scale_tracker)
         best: tuple[Detection, float] | None = None
+        self._pending = None
+        # the tiles' CPU budget: a frame's tiles at most every tile_interval_s of footage, each
+        # tile's threshold allowing the false alarms of the time since the tiles searched before
+        since = None if self._last_tile_time is None else time - self._last_tile_time
+        if since is not None and since < cfg.tile_interval_s - 1e-6:
+            return None
+        dt_tiles = dt if since is None or cfg.tile_interval_s <= 0 else max(since, 1e-3)
         for _ in range(cfg.tiles_per_frame):
             s = self.sweep_scale(*scale_tracker.scale_range())
             k = scale_tracker.factor(s)
@@ -410,6 +421,7 @@ class Reacquirer:
             x0, y0, x1, y1 = tiles[self._tile]
             self._tile += 1
             self.tiles += 1
+            self._last_tile_time = float(time)
             step = max(cfg.grid_lengths * length, 1.0)
             xs = np.arange(x0 + step / 2, x1, step)
             ys = np.arange(y0 + step / 2, y1, step)
@@ -422,7 +434,7 @@ class Reacquirer:
             if det is None:
                 continue
             det = self._refine(grid_at, k, xy, maxima, step, s, crop)
-            thr = self._threshold(dt, maxima)
+            thr = self._threshold(dt_tiles, maxima)
             if det.score >= thr and (best is None or det.score > best[0].score):
                 best = (det, thr)
         self._pending = best
