@@ -403,7 +403,6 @@ class Reacquirer:
                 if again.score >= thr:
                     return self._at_best_scale(again, grid_at, scale_tracker)
         best: tuple[Detection, float] | None = None
-        self._pending = None
         # the tiles' CPU budget: a frame's tiles at most every tile_interval_s of footage, each
         # tile's threshold allowing the false alarms of the time since the tiles searched before
         since = None if self._last_tile_time is None else time - self._last_tile_time
