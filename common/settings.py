@@ -195,11 +195,11 @@ class ReacquisitionSettings(BaseModel):
     """Side of a search tile in matched (resampled) pixels: bounds the search's CPU per frame."""
     tiles_per_frame: int = Field(1, ge=1)
     """Tiles searched per frame while lost."""
-    tile_interval_s: float = Field(1 / 15, ge=0)
+    tile_interval_s: float = Field(0.1, ge=0)
     """Least time between two frames whose tiles are searched (0: every searched frame): the tiles'
     CPU per second of footage. A tile costs more than a held frame (its crop's DTCWT, every angle);
-    at 1/15 s a 30 fps source searches them on every other searched frame, a source at 15 fps or
-    less on every one. Each tile's threshold allows the false alarms of the whole time since the
+    at 0.1 s, ten tiles a second, a 30 fps source searches them on every third searched frame, a
+    source at 10 fps or less on every one. Each tile's threshold allows the false alarms of the whole time since the
     tiles searched before, so the false alarms a second do not depend on it."""
     grid_lengths: float = Field(0.3, gt=0)
     """Spacing of the candidate centres, in target lengths."""

@@ -19,7 +19,7 @@ confident detection to restart the filter on.
   (the resampled image the template is matched on), overlapping by a target length, visited
   nearest-first from where the target was last held, then in a stride that does not chase a
   moving target, ``tiles_per_frame`` a frame at most every ``tile_interval_s`` of footage (every
-  other frame at 30 fps); each tile is scored on a grid of candidate centres
+  third frame at 30 fps); each tile is scored on a grid of candidate centres
   ``grid_lengths`` target lengths apart at all 48 angles, at one scale per sweep of the frame
   (every other sweep at the last held scale, the others ``scale_ratio`` smaller and larger, ...
   to ``scale_steps`` ratios either way, within the range the matching can follow). The CPU per frame is
