@@ -199,8 +199,8 @@ class ReacquisitionSettings(BaseModel):
     """Least time between two frames whose tiles are searched (0: every searched frame): the tiles'
     CPU per second of footage. A tile costs more than a held frame (its crop's DTCWT, every angle);
     at 0.1 s, ten tiles a second, a 30 fps source searches them on every third searched frame, a
-    source at 10 fps or less on every one. Each tile's threshold allows the false alarms of the whole time since the
-    tiles searched before, so the false alarms a second do not depend on it."""
+    source at 10 fps or less on every one. Each tile's threshold allows the false alarms of the whole
+    time since the tiles searched before, so the false alarms a second do not depend on it."""
     grid_lengths: float = Field(0.3, gt=0)
     """Spacing of the candidate centres, in target lengths."""
     restart_pos_lengths: float = Field(0.25, gt=0)
