@@ -19,9 +19,9 @@ import pytest
 from common.msgs.image_wire import decode_frame
 
 from common.record.reader import read_recording
-from services.bus import wait_for_alive
-from services.launcher import EXIT_DISK_FULL, router_config
+from services.launcher import EXIT_DISK_FULL
 from services.shm_files import segment_files, segments_mapped_by
+from tests.outage import outage_report, wait_restarted
 
 pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
 
@@ -68,7 +68,7 @@ def kill_at(watch: Watch, services, sig, at: int = 8, pause_source: bool = False
 def resume_when_alive(pipe, service) -> None:
     """``on_restart``: the source goes on once the restarted service is up (seconds here)."""
     try:
-        assert wait_for_alive(pipe.session, router_config(pipe.hub_port, pipe.stream), [service], 120)
+        wait_restarted(pipe, service)
     finally:
         pipe.resume_source()
 
@@ -89,17 +89,19 @@ def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig, pipeline
     inject, _ = kill_at(watch, ["detector"], sig, pause_source=True)
     with pipeline(frames, on_restart=resume_when_alive) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
-    assert [(r["service"], r["status"]) for r in result.restarts] == [("detector", -sig if sig == signal.SIGKILL else 0)]
+    rec = read_recording(result.mcap)
+    report = outage_report(rec, tmp_path)
+    status = -sig if sig == signal.SIGKILL else 0
+    assert [(r["service"], r["status"]) for r in result.restarts] == [("detector", status)], report
     gap = result.restarts[0]
     assert gap["died_after_frames"] >= 9 and gap["restarted_after_frames"] >= gap["died_after_frames"]
     assert result.failure is None and not result.ok  # recovered, but the run says a service died
-    rec = read_recording(result.mcap)
     ests = sorted(rec.decoded("track/estimate"), key=lambda e: e.frame_index)
-    assert [e.frame_index for e in ests] == list(range(frames))
+    assert [e.frame_index for e in ests] == list(range(frames)), report
     unobserved = [e.frame_index for e in ests if not e.observed]
-    assert all(i >= 8 for i in unobserved) and len(unobserved) <= 5, unobserved
+    assert all(i >= 8 for i in unobserved) and len(unobserved) <= 5, report
     print(f"detector {sig.name}: restarted after frame {gap['died_after_frames']}, {len(unobserved)} unobserved")
-    assert ests[-1].observed and ests[-1].p_visible > 0.9  # recovered
+    assert ests[-1].observed and ests[-1].p_visible > 0.9, report  # recovered
     info = {i.index: i for i in rec.decoded("frame/info") if not i.end_of_stream}[frames - 1]
     assert np.hypot(ests[-1].x - info.truth.centre_x, ests[-1].y - info.truth.centre_y) < 5
     assert len(rec.messages["frame/image"]) == frames

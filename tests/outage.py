@@ -1,0 +1,48 @@
+"""For the tests that kill a service mid-run: wait for the restarted instance itself, and say what
+happened over the outage when a recovery assertion fails."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from common.msgs import ScoreReply
+from services.bus import wait_for_alive
+from services.launcher import router_config
+
+
+def alive_names(session, bus) -> set[str]:
+    """The services whose liveliness token is on the bus now."""
+    return {str(r.ok.key_expr).rsplit("/", 1)[-1]
+            for r in session.liveliness().get(bus.key("alive/*"), timeout=1.0) if r.ok is not None}
+
+
+def wait_restarted(pipe, service: str, timeout: float = 120.0) -> None:
+    """Until the killed ``service``'s token has left the bus, then until the new instance's is on
+    it. Right after a kill the bus can still list the dead instance under the same name: waiting
+    for the name alone could let the source go on before the new instance is up, and the frames
+    would then all go unobserved while it starts. (A new instance up before the old token is seen
+    to go shares its name: after 10 s the wait goes on to the name.)"""
+    bus = router_config(pipe.hub_port, pipe.stream)
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and service in alive_names(pipe.session, bus):
+        time.sleep(0.02)
+    assert wait_for_alive(pipe.session, bus, [service], timeout), f"no {service} on the bus after {timeout:.0f} s"
+
+
+def outage_report(rec, log_dir: Path, estimates_key: str = "track/estimate", lines: int = 12) -> str:
+    """What each frame got over the run (observed or not, the detector's non-OK replies by frame)
+    and the last lines of the tracker's and detector's logs: the message of a failed recovery."""
+    ests = sorted(rec.decoded(estimates_key), key=lambda e: e.frame_index)
+    unobserved = [e.frame_index for e in ests if not e.observed]
+    replies: dict[int, list[str]] = {}
+    for r in rec.decoded("detector/reply"):
+        if r.status != ScoreReply.OK:
+            replies.setdefault(int(r.frame_index), []).append(ScoreReply.Status.Name(r.status))
+    out = [f"estimates {len(ests)}, unobserved {unobserved}", f"non-OK replies by frame {replies}"]
+    for service in ("tracker", "detector", "ingest"):
+        p = Path(log_dir) / f"{service}.log"
+        text = p.read_text(errors="replace").splitlines()[-lines:] if p.exists() else ["(no log)"]
+        out.append(f"--- {service}.log (last {lines} lines)")
+        out.extend(text)
+    return "\n".join(out)
