@@ -25,8 +25,8 @@ from common.sources import PrerenderedSource, SourceError, open_source
 from common.sources.published import parse_image_format, published_image
 from services import options
 from common.validation import check_estimate, check_multi_estimate
-from services.bus import (BusConfig, Counters, Inbox, ServiceShell, Stopper, attachment_sender, ns_attachment,
-                          payload_bytes, wait_for_alive)
+from services.bus import (BusConfig, Counters, Inbox, Presence, ServiceShell, Stopper, attachment_sender,
+                          ns_attachment, payload_bytes, wait_for_alive)
 from services.shm_populate import SegmentPopulator
 
 log = logging.getLogger("polartrack.ingest")
@@ -49,6 +49,10 @@ class IngestSettings(BaseModel):
     dropped"""
     consumer_timeout_s: float = Field(10.0, gt=0)
     """consumer pacing: give up waiting after this"""
+    detector_wait_s: float = Field(60.0, ge=0)
+    """consumer pacing: while a detector that was on the bus is gone (killed, being restarted), hold
+    the next frame up to this long for one to be back (seconds): a file loses nothing by waiting,
+    and a frame sent meanwhile could only be predicted. 0: never hold"""
     wait_for: list[str] = Field(default_factory=list)
     """services to wait for (liveliness) first"""
     wait_timeout_s: float = Field(60.0, gt=0)
@@ -197,6 +201,31 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
                     inbox.close(name)  # a sample already on Zenoh's threads is not kept either
                 listening = False
 
+        presence = Presence(session, bus) if cfg.pace == "consumer" and cfg.detector_wait_s > 0 else None
+        detector_seen = False
+
+        def wait_for_detector(index: int) -> None:
+            """Hold frame ``index`` while a detector that was on the bus is gone (consumer pacing),
+            up to ``detector_wait_s``: with none, the tracker could only predict it, and a source
+            that went on would send every remaining frame in milliseconds, each a prediction."""
+            nonlocal detector_seen
+            if presence is None:
+                return
+            if "detector" in presence:
+                detector_seen = True
+                return
+            if not detector_seen:
+                return  # none yet (a run without one, or not up): pacing by the estimates alone
+            log.warning("frame %d: the detector has left the bus: held until one is back (at most %.0f s)",
+                        index, cfg.detector_wait_s)
+            t0 = time.monotonic()
+            if presence.wait("detector", cfg.detector_wait_s, stopper):
+                log.info("frame %d: a detector is back after %.1f s", index, time.monotonic() - t0)
+            else:
+                log.error("no detector after %.0f s: the frames go on without one", cfg.detector_wait_s)
+                c.add("errors")
+                detector_seen = False  # not held again until one has been back
+
         def wait_for_estimate(upto: int) -> None:
             """Until frame ``upto`` or a later one is estimated (consumer pacing, and the first
             frame of a real-time run), or ``consumer_timeout_s``."""
@@ -228,6 +257,7 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
             index = frame.index
             if cfg.pace == "consumer":
                 wait_for_estimate(frame.index - cfg.window)
+                wait_for_detector(frame.index)
             elif cfg.pace == "realtime":
                 if clock.wall0 is None:
                     clock.start(frame.time)
@@ -270,6 +300,8 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         pub_info.put(eos.SerializeToString(), attachment=ns_attachment(last_ns))
         status.final(attachment=ns_attachment(last_ns))
         log.info("published %d frames", c["published"])
+        if presence is not None:
+            presence.close()
         time.sleep(0.1)
     return c
 

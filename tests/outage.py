@@ -20,14 +20,42 @@ def alive_names(session, bus) -> set[str]:
 def wait_restarted(pipe, service: str, timeout: float = 120.0) -> None:
     """Until the killed ``service``'s token has left the bus, then until the new instance's is on
     it. Right after a kill the bus can still list the dead instance under the same name: waiting
-    for the name alone could let the source go on before the new instance is up, and the frames
-    would then all go unobserved while it starts. (A new instance up before the old token is seen
-    to go shares its name: after 10 s the wait goes on to the name.)"""
+    for the name alone could let a test go on before the new instance is up. (A new instance up
+    before the old token is seen to go shares its name: after 10 s the wait goes on to the name.)"""
     bus = router_config(pipe.hub_port, pipe.stream)
     deadline = time.monotonic() + 10.0
     while time.monotonic() < deadline and service in alive_names(pipe.session, bus):
         time.sleep(0.02)
     assert wait_for_alive(pipe.session, bus, [service], timeout), f"no {service} on the bus after {timeout:.0f} s"
+
+
+class DetectorOutage:
+    """``on_estimate`` for a run the launcher does not supervise: the detector is killed at the
+    first estimate of frame ``at`` or later, and a new one started at once. Ingest (consumer
+    pacing) holds the source while no detector is on the bus, so the frames it had already sent
+    are the only predictions. ``events``: ("killed" | "restarted", frame index)."""
+
+    def __init__(self, at: int):
+        self.at = at
+        self.events: list[tuple[str, int]] = []
+
+    def __call__(self, pipe, est) -> None:
+        if not self.events and est.frame_index >= self.at:
+            pipe.kill("detector")
+            self.events.append(("killed", est.frame_index))
+            pipe.start("detector")
+            wait_restarted(pipe, "detector")
+            self.events.append(("restarted", est.frame_index))
+
+    def check(self, ests, report: str, most: int = 5) -> list[int]:
+        """The recovery: the run's estimates (by frame) were predictions only after the kill, at
+        most ``most`` of them (the frames in flight), and the last frame is observed; the frames
+        unobserved."""
+        assert [e[0] for e in self.events] == ["killed", "restarted"], f"{self.events}\n{report}"
+        unobserved = [e.frame_index for e in ests if not e.observed]
+        assert all(i > self.events[0][1] for i in unobserved) and len(unobserved) <= most, report
+        assert ests[-1].observed, report
+        return unobserved
 
 
 def outage_report(rec, log_dir: Path, estimates_key: str = "track/estimate", lines: int = 12) -> str:

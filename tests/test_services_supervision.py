@@ -81,13 +81,13 @@ def pipeline(synthetic_pipeline):
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig, pipeline):
-    """Killed (or stopped) at frame 8: restarted by the launcher. The source waits from the kill
-    until the new detector is up (its start takes seconds here; a live source would lose that
-    many frames), so the outage is the frames already in flight: at most a few unobserved."""
+    """Killed (or stopped) at frame 8: restarted by the launcher. Ingest holds the source while
+    no detector is on the bus (its start takes seconds here; a live source would lose that many
+    frames), so the outage is the frames already in flight: at most a few unobserved."""
     frames = 40
     watch = Watch()
-    inject, _ = kill_at(watch, ["detector"], sig, pause_source=True)
-    with pipeline(frames, on_restart=resume_when_alive) as pipe:
+    inject, _ = kill_at(watch, ["detector"], sig)
+    with pipeline(frames) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
     rec = read_recording(result.mcap)
     report = outage_report(rec, tmp_path)
