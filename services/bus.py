@@ -339,17 +339,19 @@ class Stopper:
         return self.event.wait(seconds)
 
 
+def alive_services(session: zenoh.Session, bus: BusConfig) -> set[str]:
+    """The services whose liveliness token is on the bus now."""
+    return {str(reply.ok.key_expr).rsplit("/", 1)[-1]
+            for reply in session.liveliness().get(bus.key("alive/*"), timeout=1.0) if reply.ok is not None}
+
+
 def wait_for_alive(session: zenoh.Session, bus: BusConfig, services: list[str], timeout: float = 20.0,
                    stopper: Stopper | None = None) -> bool:
     """Block until every named service has its liveliness token on the bus."""
     deadline = time.monotonic() + timeout
     want = set(services)
     while time.monotonic() < deadline and not (stopper and stopper.stopped):
-        alive = set()
-        for reply in session.liveliness().get(bus.key("alive/*"), timeout=1.0):
-            if reply.ok is not None:
-                alive.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
-        if want <= alive:
+        if want <= alive_services(session, bus):
             return True
         time.sleep(0.05)
     return False

@@ -7,14 +7,8 @@ import time
 from pathlib import Path
 
 from common.msgs import ScoreReply
-from services.bus import wait_for_alive
+from services.bus import alive_services, wait_for_alive
 from services.launcher import router_config
-
-
-def alive_names(session, bus) -> set[str]:
-    """The services whose liveliness token is on the bus now."""
-    return {str(r.ok.key_expr).rsplit("/", 1)[-1]
-            for r in session.liveliness().get(bus.key("alive/*"), timeout=1.0) if r.ok is not None}
 
 
 def wait_restarted(pipe, service: str, timeout: float = 120.0) -> None:
@@ -24,7 +18,7 @@ def wait_restarted(pipe, service: str, timeout: float = 120.0) -> None:
     before the old token is seen to go shares its name: after 10 s the wait goes on to the name.)"""
     bus = router_config(pipe.hub_port, pipe.stream)
     deadline = time.monotonic() + 10.0
-    while time.monotonic() < deadline and service in alive_names(pipe.session, bus):
+    while time.monotonic() < deadline and service in alive_services(pipe.session, bus):
         time.sleep(0.02)
     assert wait_for_alive(pipe.session, bus, [service], timeout), f"no {service} on the bus after {timeout:.0f} s"
 
