@@ -42,12 +42,12 @@ class DetectorOutage:
             self.events.append(("restarted", est.frame_index))
 
     def check(self, ests, report: str, most: int = 5) -> list[int]:
-        """The recovery: the run's estimates (by frame) were predictions only after the kill, at
-        most ``most`` of them (the frames in flight), and the last frame is observed; the frames
-        unobserved."""
+        """The recovery: the run's estimates (by frame) held predictions, all after the kill and
+        at most ``most`` of them (the frames in flight until ingest saw the detector go), and the
+        last frame is observed; the frames unobserved."""
         assert [e[0] for e in self.events] == ["killed", "restarted"], f"{self.events}\n{report}"
         unobserved = [e.frame_index for e in ests if not e.observed]
-        assert all(i > self.events[0][1] for i in unobserved) and len(unobserved) <= most, report
+        assert unobserved and all(i > self.events[0][1] for i in unobserved) and len(unobserved) <= most, report
         assert ests[-1].observed, report
         return unobserved
 
