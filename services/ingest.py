@@ -66,6 +66,10 @@ class IngestSettings(BaseModel):
     """frames on the bus and in the recording: auto (a JPEG or PNG file's own bytes, else raw for
     rendered scenes and jpeg:90 for video and cameras), raw, png (lossless), jpeg or jpeg:QUALITY
     (lossy: every consumer decodes the published bytes); see common.sources.published"""
+    pause_before: int | None = Field(None, ge=0)
+    """hold the source before this frame (index) as SIGUSR1 does, until SIGUSR2 lets it go on: a
+    breakpoint at a known frame, to look at the run there or to inject a fault at a frame the source
+    stops at, not at one a busy launcher hears of late"""
     prerender: bool = False
     """read or render every frame before the first is published (seekable sources; memory: all frames),
     so that the source costs no more than reading a recorded video while the run goes on"""
@@ -82,16 +86,32 @@ class Pause:
     pause and resume; :meth:`services.launcher.Pipeline.pause_source` sends them). A held source
     keeps its Zenoh session running: SIGSTOP would also stop the threads that keep its
     shared-memory frames valid, and a frame still on its way to a slow subscriber could then be
-    lost (seen once in a hundred runs of the fuzz test: one frame missing from the recording)."""
+    lost (seen once in a hundred runs of the fuzz test: one frame missing from the recording).
+
+    The breakpoint (``pause_before``) holds until a SIGUSR2 has come at all: one sent before the
+    source reached it counts (a launcher that heard of the frame before it can resume the source
+    before ingest has stopped there)."""
 
     def __init__(self) -> None:
         self.held = threading.Event()
-        for sig, handler in ((signal.SIGUSR1, lambda *_: self.held.set()),
-                             (signal.SIGUSR2, lambda *_: self.held.clear())):
+        self.resumes = 0
+        """SIGUSR2s so far."""
+        for sig, handler in ((signal.SIGUSR1, lambda *_: self.held.set()), (signal.SIGUSR2, self._resume)):
             try:
                 signal.signal(sig, handler)
             except ValueError:  # not the main thread (tests)
                 pass
+
+    def _resume(self, *_) -> None:
+        self.resumes += 1
+        self.held.clear()
+
+    def breakpoint(self, stopper: "Stopper") -> float:
+        """Until a SIGUSR2 has come (at any time so far) or the run is stopped. Returns the seconds waited."""
+        t0 = time.monotonic()
+        while self.resumes == 0 and not stopper.stopped:
+            stopper.wait(0.01)
+        return time.monotonic() - t0
 
     def wait(self, stopper: "Stopper") -> float:
         """While held (and not stopped): wait. Returns the seconds waited."""
@@ -249,7 +269,11 @@ def serve(bus: BusConfig, cfg: IngestSettings, stopper: Stopper) -> Counters:
         for frame in frames_to_publish(source, cfg.pace, c, clock, cfg.max_late_frames):
             if stopper.stopped:
                 break
-            held = pause.wait(stopper)
+            held = 0.0
+            if frame.index == cfg.pause_before:
+                log.info("frame %d: paused before it (pause_before) until resumed", frame.index)
+                held = pause.breakpoint(stopper)
+            held += pause.wait(stopper)
             if held and clock.wall0 is not None:
                 clock.wall0 += held  # real time resumes where it was held
             if stopper.stopped:

@@ -168,11 +168,12 @@ class Pipeline:
                  name: str | None = None, log_dir: str | Path | None = None, shared_memory: bool = True,
                  prerender: bool = False, multi=None, supervise: bool = True, on_restart=None,
                  recorder_options: dict | None = None, viewer_options: dict | None = None,
-                 image_format: str = "auto"):
+                 image_format: str = "auto", ingest_options: dict | None = None):
         """``supervise``: restart a dead detector, recorder or viewer (at most ``MAX_RESTARTS``
         times each), end the run on a dead router, tracker or ingest. ``on_restart(pipeline,
         service)`` is called after each restart (fault-injection tests). ``recorder_options``:
-        more keys of the recorder's settings (``services.recorder.RecorderSettings``). ``prerender``: the ingest service reads or renders every frame before publishing the
+        more keys of the recorder's settings (``services.recorder.RecorderSettings``); ``ingest_options``
+        of ingest's (``services.ingest.IngestSettings``, e.g. ``pause_before``). ``prerender``: the ingest service reads or renders every frame before publishing the
         first (see :class:`common.sources.PrerenderedSource`). ``multi``: a
         :class:`common.multitarget.runner.MultiRun` (multi-target filters; ``init_box`` is then None
         and ``settings`` only the single-target defaults)."""
@@ -199,6 +200,7 @@ class Pipeline:
         self.logs: dict[str, object] = {}
         self.supervise, self.on_restart = supervise, on_restart
         self.recorder_options = dict(recorder_options or {})
+        self.ingest_options = dict(ingest_options or {})
         self.image_format = image_format
         """How frames go on the bus (common.sources.published): auto, raw, png, jpeg[:Q]."""
         self.viewer_options = dict(viewer_options or {})
@@ -251,7 +253,8 @@ class Pipeline:
             waits = [s for s in self.services if s != "ingest"]
             cfg.write_text(json.dumps({"source": self.source, "frames": self.frames, "pace": self.pace,
                                        "wait_for": waits, "run_config": run_config,
-                                       "prerender": self.prerender, "image_format": self.image_format}))
+                                       "prerender": self.prerender, "image_format": self.image_format,
+                                       **self.ingest_options}))
             return base + ["--config", str(cfg)]
         return base
 

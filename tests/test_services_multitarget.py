@@ -258,7 +258,7 @@ def test_detector_killed_and_restarted_multi(tmp_path):
     run = MultiRun.make("epmcmc-elpda", open_source(SOURCE, n_frames=frames).person_boxes(), n_parts=PARTS,
                         particles=PARTICLES)
     with Pipeline(SOURCE, None, TrackerSettings(), out_dir=tmp_path, frames=frames, viewer=False, log_dir=tmp_path,
-                  multi=run, supervise=False) as pipe:  # restarted by hand here
+                  multi=run, supervise=False, ingest_options=inject.ingest_options) as pipe:  # restarted by hand here
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
     rec = read_recording(result.mcap)
     report = outage_report(rec, tmp_path, "track/multi_estimate")

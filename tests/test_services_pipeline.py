@@ -200,14 +200,15 @@ def test_no_zenoh_shared_memory_left(recorded_run):
 def test_detector_killed_and_restarted(tmp_path):
     """The tracker predicts the frames sent while the detector is gone and recovers when one is
     back; ingest holds the source meanwhile, and the recording holds every frame
-    (:class:`tests.outage.DetectorOutage`: killed at frame 8 and started again at once)."""
+    (:class:`tests.outage.DetectorOutage`: killed at frame 8, the source stopped before frame 9
+    until then, and started again at once)."""
     frames = 40
     src = open_source(SOURCE, n_frames=frames)
     settings = profile_for(src, seed=3)
     inject = DetectorOutage(8)
 
     with Pipeline(SOURCE, src.frame(0).truth.box, settings, out_dir=tmp_path, frames=frames, viewer=False,
-                  log_dir=tmp_path, supervise=False) as pipe:  # restarted by hand here (supervised: test_services_supervision)
+                  log_dir=tmp_path, supervise=False, ingest_options=inject.ingest_options) as pipe:  # restarted by hand here (supervised: test_services_supervision)
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
         published = pipe.statuses["ingest"].published
     rec = read_recording(result.mcap)

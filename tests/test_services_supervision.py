@@ -48,21 +48,29 @@ class Watch:
         assert not (segment_files() & self.segments), "shared-memory files left"
 
 
-def kill_at(watch: Watch, services, sig, at: int = 8, pause_source: bool = False):
-    """``on_estimate`` sending ``sig`` to ``services`` at frame ``at`` (the source stopped first
-    with ``pause_source``: see :func:`resume_when_alive`), and the list of (frame, time) it did."""
+def kill_at(watch: Watch, services, sig, at: int = 8, resume: bool = True):
+    """``on_estimate`` sending ``sig`` to ``services`` at the first estimate of frame ``at`` or later
+    the launcher hears of, and the list of (frame, time) it did. On a pipeline whose source stops
+    before the next frame (:func:`held_after`), nothing later goes out before the kill, however late
+    a busy launcher hears of frame ``at``. ``resume``: the source goes on right after the kill (else
+    the pipeline's ``on_restart`` lets it go: :func:`resume_when_alive`)."""
     killed = []
 
     def inject(pipe, est):
         watch.look(pipe)
         if est.frame_index >= at and not killed:
-            if pause_source:
-                pipe.pause_source()
             for s in services:
                 pipe.procs[s].send_signal(sig)
             killed.append((est.frame_index, time.monotonic()))
+            if resume:
+                pipe.resume_source()
 
     return inject, killed
+
+
+def held_after(at: int) -> dict:
+    """The pipeline's ``ingest_options`` that stop its source before frame ``at + 1`` (see :func:`kill_at`)."""
+    return {"pause_before": at + 1}
 
 
 def resume_when_alive(pipe, service) -> None:
@@ -81,13 +89,14 @@ def pipeline(synthetic_pipeline):
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_dead_detector_is_restarted_and_the_run_recovers(tmp_path, sig, pipeline):
-    """Killed (or stopped) at frame 8: restarted by the launcher. Ingest holds the source while
-    no detector is on the bus (its start takes seconds here; a live source would lose that many
-    frames), so the outage is the frames already in flight: at most a few unobserved."""
+    """Killed (or stopped) at frame 8, the source stopped before frame 9 until then: restarted by
+    the launcher. Ingest holds the source while no detector is on the bus (its start takes seconds
+    here; a live source would lose that many frames), so the outage is the frames sent before
+    ingest saw the detector go: at most a few unobserved."""
     frames = 40
     watch = Watch()
     inject, _ = kill_at(watch, ["detector"], sig)
-    with pipeline(frames) as pipe:
+    with pipeline(frames, ingest_options=held_after(8)) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
     rec = read_recording(result.mcap)
     report = outage_report(rec, tmp_path)
@@ -205,13 +214,13 @@ def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path, pipelin
     watch = Watch()
     # at frame 20: the recorder holds the last 0.25 s of log time to write it in order (7.5
     # frames here), so a kill much earlier can find nothing whole on disk yet
-    inject, _ = kill_at(watch, ["recorder", "viewer"], signal.SIGKILL, at=20, pause_source=True)
+    inject, _ = kill_at(watch, ["recorder", "viewer"], signal.SIGKILL, at=20, resume=False)
 
     def restarted(pipe, service):  # the source waits for each new process
         pipe.pause_source()
         resume_when_alive(pipe, service)
 
-    with pipeline(frames, viewer=True, on_restart=restarted) as pipe:
+    with pipeline(frames, viewer=True, on_restart=restarted, ingest_options=held_after(20)) as pipe:
         result = pipe.run(progress=False, timeout=300, on_estimate=inject)
     assert sorted((r["service"], r["status"]) for r in result.restarts) == [("recorder", -9), ("viewer", -9)]
     assert result.failure is None and not result.ok and result.estimates == frames

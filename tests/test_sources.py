@@ -250,3 +250,36 @@ def test_pause_holds_the_source_until_resumed_and_a_stop_ends_the_hold():
     finally:
         for s, h in saved.items():
             signal.signal(s, h)
+
+
+def test_breakpoint_holds_until_a_resume_whenever_it_came():
+    """``pause_before``'s hold ends at the first SIGUSR2, whether it comes while the source is
+    held there or came before the source got there (a launcher can hear of the frame before
+    and resume first); without any, only a stop ends it."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from services.bus import Stopper
+    from services.ingest import Pause
+
+    saved = {s: signal.getsignal(s) for s in (signal.SIGUSR1, signal.SIGUSR2, signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        pause, stopper = Pause(), Stopper()
+        threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGUSR2)).start()
+        t0 = time.monotonic()
+        held = pause.breakpoint(stopper)
+        assert 0.25 <= held and time.monotonic() - t0 >= 0.25 and pause.resumes == 1
+
+        early = Pause()
+        os.kill(os.getpid(), signal.SIGUSR2)  # the resume first
+        assert early.breakpoint(stopper) < 0.05  # then the breakpoint: not held
+
+        never, stop = Pause(), Stopper()  # negative control: no resume, only the stop ends it
+        threading.Timer(0.3, stop.event.set).start()
+        t0 = time.monotonic()
+        assert never.breakpoint(stop) >= 0.25 and never.resumes == 0 and time.monotonic() - t0 < 5
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
