@@ -36,6 +36,10 @@ RESTARTED = ("detector", "recorder", "viewer")
 """Services the launcher restarts when they die mid-run (a bounded number of times); a dead
 router, tracker or ingest ends the run with a failure."""
 
+END_GRACE_S = 2.0
+"""How long the end of the stream may take to reach the launcher after a service that stops at the
+end (the tracker, the viewer) has exited cleanly: within it, the exit is not yet a fault."""
+
 MAX_RESTARTS = 3
 
 EXIT_DISK_FULL = 3
@@ -378,10 +382,10 @@ class Pipeline:
         lines = [ln for ln in self.log_text(service).splitlines() if ln.strip()]
         return lines[-1][-300:] if lines else ""
 
-    def _check_services(self, state: dict) -> str | None:
-        """One look at the processes: restart a dead detector, recorder or viewer; a failure
-        (why the run must end now), or None."""
-        now = time.monotonic()
+    def _check_services(self, state: dict, now: float | None = None) -> str | None:
+        """One look at the processes (at monotonic time ``now``): restart a dead detector, recorder
+        or viewer; a failure (why the run must end now), or None."""
+        now = time.monotonic() if now is None else now
         router = self.procs.get("router")
         if router is not None and router.poll() is not None:
             return f"the router exited with status {router.returncode}"
@@ -393,14 +397,18 @@ class Pipeline:
                 return f"the tracker exited with status {tracker.returncode}: {self._last_line('tracker')}"
             if not state["eos"]:
                 state.setdefault("tracker_gone", now)
-                if now - state["tracker_gone"] > 2.0:  # its last messages may still be on the way
+                if now - state["tracker_gone"] > END_GRACE_S:  # its last messages may still be on the way
                     return "the tracker exited before the end of the source"
         for service in RESTARTED:
             proc = self.procs.get(service)
             if proc is None or proc.poll() is None or state.get("closing"):
                 continue
-            if service == "viewer" and proc.returncode == 0 and state["eos"]:
-                continue  # the viewer stops by itself once the stream has ended
+            if service == "viewer" and proc.returncode == 0:
+                # the viewer stops by itself once the stream has ended, and may have seen the end
+                # before a busy launcher does: a clean exit is a death only if no end comes soon
+                quiet = state.setdefault(("exited", proc.pid), now)
+                if state["eos"] or ingest.poll() == 0 or now - quiet <= END_GRACE_S:
+                    continue
             if service == "recorder" and proc.returncode == EXIT_DISK_FULL:
                 return f"recorder: {self._last_line('recorder').split('error: ', 1)[-1]}"
             if not self.supervise:

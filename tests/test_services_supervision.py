@@ -234,3 +234,51 @@ def test_dead_recorder_and_viewer_are_restarted_into_new_files(tmp_path, pipelin
     assert a and b and max(a) < min(b) and max(b) == frames - 1  # the gap between them, nothing twice
     assert len(warnings) == 1  # the killed one is cut short; the restarted one closed cleanly
     watch.assert_clean()
+
+
+class _Proc:
+    """A process as the launcher's supervision sees it: ``poll()`` -> its exit status (None: running)."""
+
+    def __init__(self, returncode, pid):
+        self.returncode, self.pid = returncode, pid
+
+    def poll(self):
+        return self.returncode
+
+
+def test_a_viewer_that_stopped_at_the_end_before_the_launcher_heard_of_it_is_not_restarted(tmp_path):
+    """The viewer exits 0 a second after the stream's end; a starved launcher can see that exit
+    before the end itself (seen under four busy loops at nice -15: the viewer restarted after the
+    run's last frame). A clean exit is a death only if no end comes within ``END_GRACE_S``, or
+    ingest has not ended; negative control: a viewer stopped cleanly mid-run is restarted."""
+    from common.settings import TrackerSettings
+    from services.launcher import END_GRACE_S, Pipeline
+
+    pipe = Pipeline(SOURCE, (10.0, 10.0, 20.0, 20.0), TrackerSettings(), out_dir=tmp_path, frames=40, log_dir=tmp_path)
+    started = []
+    pipe.start = started.append
+    pipe.restart_log = []  # as run() sets it up
+    running = _Proc(None, 1)
+    try:
+        pipe.procs = {s: running for s in ("router", "tracker", "ingest", "detector", "recorder")}
+        pipe.procs["viewer"] = _Proc(0, 2)
+        state, t = {"eos": False, "frames": 40}, 100.0
+        assert pipe._check_services(state, now=t) is None and started == []  # the end not heard of yet
+        state["eos"] = True  # ... and then heard of, within the grace
+        assert pipe._check_services(state, now=t + END_GRACE_S + 5) is None and started == []
+
+        pipe.procs["ingest"] = _Proc(0, 3)  # the source over: ingest exited cleanly
+        pipe.procs["viewer"] = _Proc(0, 4)
+        state = {"eos": False, "frames": 40}
+        assert pipe._check_services(state, now=t) is None
+        assert pipe._check_services(state, now=t + END_GRACE_S + 5) is None and started == []
+
+        pipe.procs["ingest"] = running  # negative control: mid-run, no end comes
+        pipe.procs["viewer"] = _Proc(0, 5)
+        state = {"eos": False, "frames": 20}
+        assert pipe._check_services(state, now=t) is None and started == []
+        assert pipe._check_services(state, now=t + END_GRACE_S + 0.1) is None and started == ["viewer"]
+        assert pipe.restart_log == [{"service": "viewer", "status": 0, "died_after_frames": 20,
+                                     "restarted_after_frames": 20}]
+    finally:
+        pipe.tmp.cleanup()
