@@ -108,19 +108,21 @@ class Pause:
 
     def breakpoint(self, stopper: "Stopper") -> float:
         """Until a SIGUSR2 has come (at any time so far) or the run is stopped. Returns the seconds waited."""
-        t0 = time.monotonic()
-        while self.resumes == 0 and not stopper.stopped:
-            stopper.wait(0.01)
-        return time.monotonic() - t0
+        return _wait_while(lambda: self.resumes == 0, stopper)
 
     def wait(self, stopper: "Stopper") -> float:
         """While held (and not stopped): wait. Returns the seconds waited."""
-        if not self.held.is_set():
-            return 0.0
-        t0 = time.monotonic()
-        while self.held.is_set() and not stopper.stopped:
-            stopper.wait(0.01)
-        return time.monotonic() - t0
+        return _wait_while(self.held.is_set, stopper)
+
+
+def _wait_while(busy, stopper: "Stopper") -> float:
+    """While ``busy()`` and the run is not stopped: wait. Returns the seconds waited (0.0 when not busy)."""
+    if not busy():
+        return 0.0
+    t0 = time.monotonic()
+    while busy() and not stopper.stopped:
+        stopper.wait(0.01)
+    return time.monotonic() - t0
 
 
 class Clock:

@@ -23,6 +23,13 @@ def wait_restarted(pipe, service: str, timeout: float = 120.0) -> None:
     assert wait_for_alive(pipe.session, bus, [service], timeout), f"no {service} on the bus after {timeout:.0f} s"
 
 
+def held_after(at: int) -> dict:
+    """A pipeline's ``ingest_options`` that stop its source before frame ``at + 1`` (the ingest
+    breakpoint ``pause_before``) until it is resumed: a fault injected when the launcher hears of
+    frame ``at`` then comes before any later frame goes out, however late a busy launcher hears."""
+    return {"pause_before": at + 1}
+
+
 class DetectorOutage:
     """``on_estimate`` for a run the launcher does not supervise: the detector is killed at the
     first estimate of frame ``at`` or later, the source let go and a new detector started at once.
@@ -34,7 +41,7 @@ class DetectorOutage:
     def __init__(self, at: int):
         self.at = at
         self.events: list[tuple[str, int]] = []
-        self.ingest_options = {"pause_before": at + 1}
+        self.ingest_options = held_after(at)
         """The pipeline's ``ingest_options``."""
 
     def __call__(self, pipe, est) -> None:

@@ -21,7 +21,7 @@ from common.msgs.image_wire import decode_frame
 from common.record.reader import read_recording
 from services.launcher import EXIT_DISK_FULL
 from services.shm_files import segment_files, segments_mapped_by
-from tests.outage import outage_report, wait_restarted
+from tests.outage import held_after, outage_report, wait_restarted
 
 pytestmark = pytest.mark.slow  # services as separate processes on a loopback bus
 
@@ -51,7 +51,7 @@ class Watch:
 def kill_at(watch: Watch, services, sig, at: int = 8, resume: bool = True):
     """``on_estimate`` sending ``sig`` to ``services`` at the first estimate of frame ``at`` or later
     the launcher hears of, and the list of (frame, time) it did. On a pipeline whose source stops
-    before the next frame (:func:`held_after`), nothing later goes out before the kill, however late
+    before the next frame (:func:`tests.outage.held_after`), nothing later goes out before the kill, however late
     a busy launcher hears of frame ``at``. ``resume``: the source goes on right after the kill (else
     the pipeline's ``on_restart`` lets it go: :func:`resume_when_alive`)."""
     killed = []
@@ -66,11 +66,6 @@ def kill_at(watch: Watch, services, sig, at: int = 8, resume: bool = True):
                 pipe.resume_source()
 
     return inject, killed
-
-
-def held_after(at: int) -> dict:
-    """The pipeline's ``ingest_options`` that stop its source before frame ``at + 1`` (see :func:`kill_at`)."""
-    return {"pause_before": at + 1}
 
 
 def resume_when_alive(pipe, service) -> None:
