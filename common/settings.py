@@ -236,6 +236,12 @@ class ReacquisitionSettings(BaseModel):
     of the pending mover, its expected false alarms counted over the boxes within that reach (the
     hypotheses the confirmation searches), not over the whole frame's; a frame on which that fails
     is searched as any other."""
+    mover_near_estimate: bool = True
+    """Before the frame's strongest mover, test the strongest within a target length of where the
+    filter's cloud is now (its MAP carried into the frame), its expected false alarms counted over
+    the boxes there (the hypotheses that test searches): a target lost because its template stopped
+    matching (its scale gone stale while it grew) is often still under the cloud, and the frame's
+    strongest mover may be another vehicle (docs/real-footage.md, stop 52)."""
     mover_confirm_within_target: bool = True
     """Confirm a pending mover when the next frame's strongest mover lies within the target length it
     was matched at (at least a box length): in boxes smaller than the target the strongest one may lie

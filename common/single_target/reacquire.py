@@ -55,6 +55,10 @@ confident detection to restart the filter on.
   mover itself (a target entering at the frame's edge, its footprint not yet in the frame) the mover stays
   pending: the grid's scorable points there lie towards the frame's inside, off the target (the
   synthetic exit sequence's restart was 16 px ahead of the car, and the filter lost it).
+  With ``mover_near_estimate`` the strongest mover within a target length of the filter's cloud is
+  tested first, its false alarms counted over the boxes there: a target lost because its template
+  no longer matches (its scale gone stale while it grew, uav123-truck4) is often still under the
+  cloud, while the frame's strongest mover is another vehicle.
   On real footage the template often no longer matches a target that comes back (another view,
   another size: uav123-car16's car scores 0.5 where the road scores 0.75, docs/real-footage.md),
   but a car that drives still moves over the ground.
@@ -364,7 +368,7 @@ class Reacquirer:
             stride += 1
         return [tiles[(i * stride) % n] for i in range(n)]
 
-    def search(self, time: float, grid_at, scale_tracker, movers=None) -> Detection | None:
+    def search(self, time: float, grid_at, scale_tracker, movers=None, cloud=None) -> Detection | None:
         """Search this frame; a detection confirmed on two frames in a row, or None.
 
         ``grid_at(k, xy, crop)`` -> (scores (N, 48), valid (N,)) at factor ``k`` (the scale search's
@@ -373,7 +377,9 @@ class Reacquirer:
         ``movers`` is the tracker's moving-target cue with this frame pushed
         (:class:`common.single_target.motion_cue.MotionCue`: ``movers(s)`` -> the frame's boxes and
         their motion z-scores at scale s, ``blob_box(xy)``, ``blob_scale(xy)`` and ``box_size``, the
-        first box's; None: no cue, the tiles only).
+        first box's; None: no cue, the tiles only); ``cloud`` is where the filter's cloud is now (its
+        MAP carried into this frame's pixels; None: unknown), whose movers are tested first
+        (``mover_near_estimate``).
 
         A candidate that passes the threshold on one frame is only pending: the next frame looks
         for it again within a target length of it (at its scale) and confirms it if it passes
@@ -384,7 +390,7 @@ class Reacquirer:
         self.searches += 1
         self.mover_gate = None
         if movers is not None and cfg.motion_search:
-            det = self._search_movers(dt, grid_at, scale_tracker, movers)
+            det = self._search_movers(dt, grid_at, scale_tracker, movers, cloud)
             if det is not None:
                 self._pending = None
                 return self._at_best_scale(det, grid_at, scale_tracker)
@@ -439,7 +445,7 @@ class Reacquirer:
         self._pending = best
         return None
 
-    def _search_movers(self, dt: float, grid_at, scale_tracker, movers) -> Detection | None:
+    def _search_movers(self, dt: float, grid_at, scale_tracker, movers, cloud=None) -> Detection | None:
         """The strongest mover of the frame, when the background's tail cannot explain it and it was
         the strongest on the frame before too, within the length of the target as matched then (at
         least a box length; see the module docstring). With ``mover_confirm_locally`` the confirming
@@ -466,10 +472,20 @@ class Reacquirer:
                 gate = self._gate(scale_tracker, movers, xy, z, top, s, len(near), dt)
                 if gate.false_alarms <= gate.allowed:
                     return self._confirm(grid_at, scale_tracker, pending, gate.x, gate.y)
-        top = int(np.argmax(z))
-        gate = self._gate(scale_tracker, movers, xy, z, top, s, len(z), dt)
-        if gate.false_alarms > gate.allowed:
-            return None
+        gate = None
+        if cloud is not None and cfg.mover_near_estimate:
+            around = np.flatnonzero(np.hypot(xy[:, 0] - cloud[0], xy[:, 1] - cloud[1])
+                                    <= max(length, scale_tracker.target_length_px))
+            if len(around):
+                top = int(around[np.argmax(z[around])])
+                gate = self._gate(scale_tracker, movers, xy, z, top, s, len(around), dt)
+                if gate.false_alarms > gate.allowed:
+                    gate = None
+        if gate is None:
+            top = int(np.argmax(z))
+            gate = self._gate(scale_tracker, movers, xy, z, top, s, len(z), dt)
+            if gate.false_alarms > gate.allowed:
+                return None
         x, y = gate.x, gate.y
         if pending is not None and math.hypot(x - pending.x, y - pending.y) <= reach:
             return self._confirm(grid_at, scale_tracker, pending, x, y)

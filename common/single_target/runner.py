@@ -180,6 +180,8 @@ class Tracker:
     _box_size: tuple[float, float] = (0.0, 0.0)
     _prev_image: np.ndarray | None = None
     _restart_time: float = -np.inf
+    _near: tuple[float, float] | None = None
+    """The filter's MAP of the previous frame carried into this frame's pixels (the search's prior)."""
 
     @classmethod
     def start(cls, first: Frame, init_box: tuple[float, float, float, float], settings: TrackerSettings,
@@ -261,8 +263,16 @@ class Tracker:
                 rot = _rotation_deg(j_cur @ np.linalg.inv(j_prev))
                 if np.isfinite(rot) and rot != 0.0:
                     particles[:, 4] = wrap_degrees(particles[:, 4] + rot)
+        self._near = None
         if self.frames > 0 and self.reacquirer is not None:
-            self.reacquirer.carry(_interframe(self.homography, h))
+            m = _interframe(self.homography, h)
+            self.reacquirer.carry(m)
+            if self.last_state is not None:
+                prev = np.array([self.last_state.map_estimate.image_x, self.last_state.map_estimate.image_y])
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    xy = prev if m is None else apply_homography(m, prev)
+                if np.all(np.isfinite(xy)):
+                    self._near = (float(xy[0]), float(xy[1]))
         if self.frames > 0:
             # the camera's zoom at the target is read where the target is: not at an estimate that has
             # left the frame (the homography extrapolated there), and with re-acquisition only while the
@@ -381,7 +391,7 @@ class Tracker:
         t0 = time.perf_counter()
         try:
             det = r.search(frame.time, lambda k, xy, crop=None: self.detector.scale_grid(frame, k, xy, crop),
-                           self.scale, self.motion_cue)
+                           self.scale, self.motion_cue, self._near)
         except ObservationUnavailable:
             return None  # a remote detector did not answer: search again next frame
         finally:
