@@ -466,10 +466,10 @@ class Reacquirer:
         if pending is not None and cfg.mover_confirm_within_target:
             reach = max(length, scale_tracker.length_px * pending.scale)
         if pending is not None and cfg.mover_confirm_locally:
-            near = np.flatnonzero(np.hypot(xy[:, 0] - pending.x, xy[:, 1] - pending.y) <= reach)
-            if len(near):
-                top = int(near[np.argmax(z[near])])
-                gate = self._gate(scale_tracker, movers, xy, z, top, s, len(near), dt)
+            within = np.flatnonzero(np.hypot(xy[:, 0] - pending.x, xy[:, 1] - pending.y) <= reach)
+            if len(within):
+                top = int(within[np.argmax(z[within])])
+                gate = self._gate(scale_tracker, movers, xy, z, top, s, len(within), dt)
                 if gate.false_alarms <= gate.allowed:
                     return self._confirm(grid_at, scale_tracker, pending, gate.x, gate.y)
         gate = None

@@ -180,8 +180,8 @@ class Tracker:
     _box_size: tuple[float, float] = (0.0, 0.0)
     _prev_image: np.ndarray | None = None
     _restart_time: float = -np.inf
-    _near: tuple[float, float] | None = None
-    """The filter's MAP of the previous frame carried into this frame's pixels (the search's prior)."""
+    _cloud: tuple[float, float] | None = None
+    """Where the filter's cloud is: its previous MAP carried into this frame's pixels (the search's prior)."""
 
     @classmethod
     def start(cls, first: Frame, init_box: tuple[float, float, float, float], settings: TrackerSettings,
@@ -263,7 +263,7 @@ class Tracker:
                 rot = _rotation_deg(j_cur @ np.linalg.inv(j_prev))
                 if np.isfinite(rot) and rot != 0.0:
                     particles[:, 4] = wrap_degrees(particles[:, 4] + rot)
-        self._near = None
+        self._cloud = None
         if self.frames > 0 and self.reacquirer is not None:
             m = _interframe(self.homography, h)
             self.reacquirer.carry(m)
@@ -272,7 +272,7 @@ class Tracker:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     xy = prev if m is None else apply_homography(m, prev)
                 if np.all(np.isfinite(xy)):
-                    self._near = (float(xy[0]), float(xy[1]))
+                    self._cloud = (float(xy[0]), float(xy[1]))
         if self.frames > 0:
             # the camera's zoom at the target is read where the target is: not at an estimate that has
             # left the frame (the homography extrapolated there), and with re-acquisition only while the
@@ -391,7 +391,7 @@ class Tracker:
         t0 = time.perf_counter()
         try:
             det = r.search(frame.time, lambda k, xy, crop=None: self.detector.scale_grid(frame, k, xy, crop),
-                           self.scale, self.motion_cue, self._near)
+                           self.scale, self.motion_cue, self._cloud)
         except ObservationUnavailable:
             return None  # a remote detector did not answer: search again next frame
         finally:
