@@ -869,10 +869,11 @@ def test_a_mover_under_the_lost_cloud_is_tested_before_the_frames_strongest():
     elsewhere: uav123-truck4, docs/real-footage.md, stop 52). Negative controls: the setting off,
     or no cloud to test about, the frame's strongest is pending; a cloud over background alone
     (its boxes within the tail) leaves the frame's strongest pending too."""
+    flat = lambda k, xy, crop=None: (np.zeros((len(xy), 48)), np.ones(len(xy), bool))  # nothing for the tiles
+
     def pending(cfg, near, cue):
         r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
         r.observe(0.0, _state(0.0, 0.1), 1.0)
-        flat = lambda k, xy, crop=None: (np.zeros((len(xy), 48)), np.ones(len(xy), bool))
         assert r.search(0.1, flat, _Scale, cue, near) is None
         return r._pending_mover, r.mover_gate
 
@@ -889,7 +890,6 @@ def test_a_mover_under_the_lost_cloud_is_tested_before_the_frames_strongest():
         det, gate = pending(cfg, at, _TwoMovers((300.0, 200.0), 6.0, (450.0, 300.0)))
         assert (det.x, det.y) == (450.0, 300.0) and gate.z == 30.0
     # a frame with a mover pending elsewhere that is not seen again: the cloud's mover is tested too
-    flat = lambda k, xy, crop=None: (np.zeros((len(xy), 48)), np.ones(len(xy), bool))
     for cfg, found in ((on, (300.0, 200.0)), (off, None)):
         r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
         r.observe(0.0, _state(0.0, 0.1), 1.0)

@@ -267,13 +267,19 @@ class Reacquirer:
         features says little of points beyond it (its perspective terms grow without bound there), and
         the frame's edge is the nearest place the target can be seen again. A point the map sends to
         infinity stays where it was."""
-        if m is None or self.last_held is None:
-            return
+        if self.last_held is not None:
+            self.last_held = self.carried(m, self.last_held)
+
+    def carried(self, m: np.ndarray | None, xy: tuple[float, float]) -> tuple[float, float]:
+        """The point ``xy`` carried into the next frame by ``m``, kept inside the frame (see :meth:`carry`)."""
+        if m is None:
+            return xy
         with np.errstate(divide="ignore", invalid="ignore"):
-            x, y = apply_homography(m, np.array(self.last_held, float))
-        if np.isfinite(x) and np.isfinite(y):
-            w, h = self.size
-            self.last_held = (float(np.clip(x, 0, w - 1)), float(np.clip(y, 0, h - 1)))
+            x, y = apply_homography(m, np.array(xy, float))
+        if not (np.isfinite(x) and np.isfinite(y)):
+            return xy
+        w, h = self.size
+        return float(np.clip(x, 0, w - 1)), float(np.clip(y, 0, h - 1))
 
     def holds(self, state) -> bool:
         """Whether the posterior ``state`` holds the target: p(V=1|Z) at least ``lost_p_visible`` and

@@ -267,12 +267,9 @@ class Tracker:
         if self.frames > 0 and self.reacquirer is not None:
             m = _interframe(self.homography, h)
             self.reacquirer.carry(m)
-            if self.last_state is not None:
-                prev = np.array([self.last_state.map_estimate.image_x, self.last_state.map_estimate.image_y])
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    xy = prev if m is None else apply_homography(m, prev)
-                if np.all(np.isfinite(xy)):
-                    self._cloud = (float(xy[0]), float(xy[1]))
+            if self.reacquirer.lost and self.last_state is not None:  # only a lost track searches
+                e = self.last_state.map_estimate
+                self._cloud = self.reacquirer.carried(m, (e.image_x, e.image_y))
         if self.frames > 0:
             # the camera's zoom at the target is read where the target is: not at an estimate that has
             # left the frame (the homography extrapolated there), and with re-acquisition only while the
