@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 TOOLS = sorted(p.name for p in (ROOT / "tools").glob("*.py"))
 
@@ -80,3 +82,42 @@ def test_the_turned_sequences_box_the_same_pixels(tmp_path):
             err = {(dx, dy): np.abs(im[by + dy:by + dy + bh, bx + dx:bx + dx + bw] - want).mean()
                    for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
             assert err[(0, 0)] < 6 and min(v for k, v in err.items() if k != (0, 0)) > 2 * err[(0, 0)], (kind, i, err)
+
+
+def _benchmark(tmp_path, name, sequences):
+    """A ``polartrack benchmark --json`` result holding ``sequences`` {name: (success, {seed: p20})}."""
+    seqs = [{"sequence": seq, "trackers": {"polartrack": {
+        "precision20": sum(p.values()) / len(p), "success_auc": success,
+        "seeds": [{"seed": s, "precision20": v} for s, v in p.items()]}}} for seq, (success, p) in sequences.items()]
+    path = tmp_path / name
+    path.write_text(json.dumps({"sequences": seqs}))
+    return str(path)
+
+
+def test_compare_benchmarks_counts_the_seeds_that_moved(tmp_path, capsys):
+    """``tools/compare_benchmarks.py``: per sequence the seeds up, down and identical against hand-made
+    results, the mean over the sequences both sides hold, several files on one side read as one, and
+    a file that is not a benchmark result a one-line error (exit 2)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import compare_benchmarks as cb
+    finally:
+        sys.path.remove(str(ROOT / "tools"))
+    before = _benchmark(tmp_path, "before.json", {"a": (0.5, {0: 1.0, 1: 0.7, 2: 0.9}), "b": (0.4, {0: 0.6, 1: 0.6})})
+    extra = _benchmark(tmp_path, "extra.json", {"c": (0.3, {0: 0.2})})
+    after = _benchmark(tmp_path, "after.json", {"a": (0.6, {0: 1.0, 1: 0.8, 2: 0.5}), "b": (0.4, {0: 0.6, 1: 0.6}),
+                                                "d": (0.1, {0: 0.1})})
+    result = cb.compare(cb.load([before, extra], "polartrack"), cb.load([after], "polartrack"))
+    rows = {r["sequence"]: r for r in result["sequences"]}
+    assert set(rows) == {"a", "b"}
+    assert (rows["a"]["up"], rows["a"]["down"], rows["a"]["same"]) == (1, 1, 1)
+    assert rows["a"]["moved"] == {1: [0.7, 0.8], 2: [0.9, 0.5]}
+    assert (rows["b"]["up"], rows["b"]["down"], rows["b"]["same"]) == (0, 0, 2)  # identical: nothing moved
+    assert result["mean"]["before"] == pytest.approx([(2.6 / 3 + 0.6) / 2, 0.45])
+    assert result["mean"]["after"] == pytest.approx([(2.3 / 3 + 0.6) / 2, 0.5])
+    assert result["only_before"] == ["c"] and result["only_after"] == ["d"]
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"trackers": {}}')
+    assert cb.main([str(bad), after]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "bad.json" in err and "\n" not in err
