@@ -76,7 +76,53 @@ def test_track_drawing_joins_truth_estimate_and_cloud_in_arrival_order():
     ann = ImageAnnotations.FromString(data)
     assert t == 100 and [p.type for p in ann.points] == [ann.points[0].LINE_LOOP, ann.points[0].POINTS]
     # an estimate without a cloud goes out with the next estimate, or at the flush
+    assert d.info(FrameInfo(index=1)) == [] and d.info(FrameInfo(index=2)) == []
     assert d.estimate(Estimate(frame_index=1, x=1.0, y=1.0), 200) == []
     ((t1, _),) = d.estimate(Estimate(frame_index=2, x=1.0, y=1.0), 300)
     ((t2, _),) = d.flush()
     assert (t1, t2) == (200, 300) and d.flush() == []
+
+
+def _loops(data: bytes) -> int:
+    ann = ImageAnnotations.FromString(data)
+    return sum(p.type == p.LINE_LOOP for p in ann.points)
+
+
+def test_a_drawing_whose_estimate_overtook_its_frames_info_waits_for_the_truth():
+    """The estimate and its cloud arrive before their frame's info (they come from another service):
+    the drawing waits, and goes out with the truth's box when the info comes; an info without a
+    truth, or a later frame's info (this one's lost), lets it go without; more than ``keep`` waiting,
+    the oldest goes out; the flush draws every one still held. Drawn on arrival, frame 5 would have
+    lost its truth's box (the fault a loaded machine showed in
+    tests/test_services_pipeline.py::test_recording_draws_the_track_in_foxglove)."""
+    from common.msgs import FrameInfo
+    from common.msgs.annotations import TrackDrawing
+
+    def est(i):
+        return Estimate(frame_index=i, x=3.0, y=3.0, w=4.0, h=2.0)
+
+    def cloud(i):
+        return ParticleCloud(frame_index=i, count=1, image_xy=pack(np.array([[3.0, 4.0]])))
+
+    truth = Truth(visible=True, box_x=1, box_y=1, box_w=2, box_h=2)
+    d = TrackDrawing(keep=2)
+    assert d.info(FrameInfo(index=4)) == []
+    assert d.estimate(est(5), 500) == [] and d.cloud(cloud(5)) == []  # before frame 5's info: held
+    ((t, data),) = d.info(FrameInfo(index=5, truth=truth))
+    assert t == 500 and _loops(data) == 2  # the truth's box and the estimate's
+    assert d.estimate(est(6), 600) == [] and d.cloud(cloud(6)) == []
+    ((t, data),) = d.info(FrameInfo(index=6))  # a frame without a truth (a real video)
+    assert t == 600 and _loops(data) == 1
+    assert d.estimate(est(7), 700) == [] and d.cloud(cloud(7)) == []
+    ((t, data),) = d.info(FrameInfo(index=8, truth=truth))  # frame 7's info lost: 8's lets it go
+    assert t == 700 and _loops(data) == 1
+    for i in (9, 10, 11):  # three waiting where two are kept: the oldest goes out
+        d.estimate(est(i), 100 * i)
+        out = d.cloud(cloud(i))
+    assert [t for t, _ in out] == [900]
+    assert [t for t, _ in d.flush()] == [1000, 1100] and d.flush() == []
+    d.info(FrameInfo(index=12, truth=truth))
+    d.estimate(est(12), 1200)
+    assert d.info(FrameInfo(end_of_stream=True)) == []
+    ((t, data),) = d.flush()  # an estimate without its cloud: at the flush, with its truth
+    assert t == 1200 and _loops(data) == 2

@@ -133,25 +133,40 @@ def multi_annotations(msg, capture_ns: int) -> ImageAnnotations:
 
 class TrackDrawing:
     """A run's messages joined into one ``ImageAnnotations`` a frame, as they arrive: the frame's
-    ``FrameInfo`` (its truth), then its ``Estimate``, then its ``ParticleCloud``, which the tracker
-    publishes right after the estimate (without a cloud, the drawing goes out with the next
-    estimate or at :meth:`flush`). A ``MultiEstimate`` is drawn at once. Each method returns
-    the (log time, serialised annotations) completed by that message."""
+    ``FrameInfo`` (its truth), its ``Estimate`` and its ``ParticleCloud``, which the tracker
+    publishes right after the estimate (without a cloud, the drawing is complete with the next
+    estimate or at :meth:`flush`). The info comes from ingest and the estimate from the tracker,
+    so an estimate (and its cloud) may arrive before its frame's info: such a drawing waits until
+    that info, or a later frame's, has come (the infos come in frame order), at most ``keep``
+    drawings, the oldest going out first when more wait, and all of them at :meth:`flush`. A
+    ``MultiEstimate`` is drawn at once. Each method returns the (log time, serialised annotations)
+    completed by that message."""
 
     def __init__(self, keep: int = 256):
         self.truth: dict[int, object] = {}
         self.keep = keep
-        self.pending = None  # (estimate, log time)
+        self.pending = None  # (estimate, log time): waiting for its cloud
+        self.waiting: list[tuple[object, int, object]] = []
+        """(estimate, log time, cloud or None) drawings complete but for their frame's info."""
+        self.info_index = -1
+        """The latest frame whose info has come (-1: none yet)."""
 
     def info(self, info) -> list[tuple[int, bytes]]:
-        if not info.end_of_stream and info.HasField("truth"):
+        if info.end_of_stream:
+            return []
+        if info.HasField("truth"):
             self.truth[int(info.index)] = info.truth
             while len(self.truth) > self.keep:
                 del self.truth[next(iter(self.truth))]
-        return []
+        self.info_index = max(self.info_index, int(info.index))
+        ready = [w for w in self.waiting if int(w[0].frame_index) <= self.info_index]
+        self.waiting = [w for w in self.waiting if int(w[0].frame_index) > self.info_index]
+        return [self._draw(*w) for w in ready]
 
     def estimate(self, est, log_time: int) -> list[tuple[int, bytes]]:
-        out = self.flush()
+        out = []
+        if self.pending is not None:  # the estimate before went without a cloud
+            out = self._complete(*self.pending, None)
         self.pending = (est, int(log_time))
         return out
 
@@ -160,14 +175,26 @@ class TrackDrawing:
             return []
         est, t = self.pending
         self.pending = None
-        return [(t, estimate_annotations(est, t, cloud, self.truth.get(int(est.frame_index))).SerializeToString())]
+        return self._complete(est, t, cloud)
 
     def multi(self, msg, log_time: int) -> list[tuple[int, bytes]]:
         return [(int(log_time), multi_annotations(msg, log_time).SerializeToString())]
 
     def flush(self) -> list[tuple[int, bytes]]:
-        if self.pending is None:
-            return []
-        est, t = self.pending
-        self.pending = None
-        return [(t, estimate_annotations(est, t, None, self.truth.get(int(est.frame_index))).SerializeToString())]
+        """Every drawing still held: those waiting for their frame's info, then the last estimate's."""
+        held = self.waiting + ([(*self.pending, None)] if self.pending is not None else [])
+        self.waiting, self.pending = [], None
+        return [self._draw(*w) for w in held]
+
+    def _complete(self, est, t: int, cloud) -> list[tuple[int, bytes]]:
+        """A frame's drawing, complete but for its info: drawn if that has come, else held."""
+        if int(est.frame_index) <= self.info_index:
+            return [self._draw(est, t, cloud)]
+        self.waiting.append((est, t, cloud))
+        out = []
+        while len(self.waiting) > self.keep:
+            out.append(self._draw(*self.waiting.pop(0)))
+        return out
+
+    def _draw(self, est, t: int, cloud) -> tuple[int, bytes]:
+        return t, estimate_annotations(est, t, cloud, self.truth.get(int(est.frame_index))).SerializeToString()
