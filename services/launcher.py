@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.evaluation import LiveErrors
 from common.record.meta import run_config_json
 from common.settings import TrackerSettings
 
@@ -471,9 +472,9 @@ class Pipeline:
         inbox = Inbox()
         guard = Guard("launcher", Senders(self.ids), log)
         order = FrameOrder()
-        truths: dict[int, tuple[float, float, bool]] = {}
+        live = LiveErrors()  # single target: the estimates' centre errors, whatever their order with the truths
         people: dict[int, np.ndarray] = {}  # multi-target: true part centres of the body model per frame
-        errors: dict[int, float] = {}
+        errors: dict[int, float] = {}  # multi-target: the mean error of the parts per frame
         t0 = time.monotonic()
         first_t = last_t = None
         infos_seen = 0
@@ -555,7 +556,9 @@ class Pipeline:
                         bar.refresh()
                     if info.HasField("truth") and not info.end_of_stream:
                         t = info.truth
-                        truths[info.index] = (t.centre_x, t.centre_y, t.visible)
+                        live.truth(info.index, t.centre_x, t.centre_y, t.visible)
+                    elif not info.end_of_stream:
+                        live.frame(info.index)
                     if self.multi is not None and not info.end_of_stream:
                         gt = people_truth_parts(info, self.multi.config.n_parts)
                         if gt is not None:
@@ -568,11 +571,7 @@ class Pipeline:
                     now = time.monotonic()
                     first_t = first_t or now
                     last_t = now
-                    if e.frame_index in truths:
-                        cx, cy, vis = truths[e.frame_index]
-                        if vis and np.isfinite(cx):
-                            errors[e.frame_index] = float(np.hypot(e.x - cx, e.y - cy))
-                    errors.setdefault(e.frame_index, float("nan"))
+                    live.estimate(e.frame_index, e.x, e.y)
                     bar.update(1)
                     if on_estimate is not None:
                         on_estimate(self, e)
@@ -621,6 +620,7 @@ class Pipeline:
             for s in subs if "subs" in locals() else []:
                 s.undeclare()
             self.close()
+        errors = {**live.errors, **errors}
         n = len(errors)
         errs = np.array([e for e in errors.values() if np.isfinite(e)])
         fps = (n - 1) / (last_t - first_t) if n > 1 and last_t > first_t else 0.0

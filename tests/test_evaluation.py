@@ -40,3 +40,29 @@ def test_recovery_rule():
     e3[36:] = 3.0  # too late (12 frames)
     assert not recovered(e3, re)
     assert not recovered(e, None)
+
+
+def test_live_errors_score_an_estimate_that_arrives_before_its_truth():
+    """``LiveErrors``: the same errors whichever of a frame's estimate and truth comes first; an
+    estimate whose frame's truth never comes is let go, unscored, by a later frame's; a hidden target,
+    or a frame without a truth (its info only), is NaN. Scored on arrival only, frame 2 would be NaN."""
+    import math
+
+    from common.evaluation import LiveErrors
+
+    live = LiveErrors()
+    live.truth(0, 10.0, 10.0, True)
+    live.estimate(0, 13.0, 14.0)  # the usual order
+    live.estimate(1, 0.0, 0.0)  # before frame 1's truth
+    live.estimate(2, 20.0, 0.0)  # before frame 2's truth
+    assert math.isnan(live.errors[1]) and math.isnan(live.errors[2])  # waiting
+    live.truth(1, 0.0, 0.0, False)  # hidden: NaN, not 0
+    live.truth(2, 20.0, 5.0, True)
+    live.estimate(3, 1.0, 1.0)
+    live.estimate(4, 1.0, 1.0)
+    live.frame(3)  # a frame without a truth (a real video's)
+    live.truth(5, 1.0, 1.0, True)  # frame 4's info never came: 5's lets it go, unscored
+    live.estimate(5, 4.0, 5.0)
+    e = live.errors
+    assert e[0] == 5.0 and e[2] == 5.0 and e[5] == 5.0
+    assert all(math.isnan(e[k]) for k in (1, 3, 4)) and sorted(e) == [0, 1, 2, 3, 4, 5]
