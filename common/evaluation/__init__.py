@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.await_info import AwaitInfo
+
 THRESHOLDS = np.arange(0, 51)
 """Centre-error thresholds (px) of the precision curve whose mean is ``auc50``."""
 
@@ -76,40 +78,30 @@ def recovered(errors: np.ndarray, start: int | None, within: int = 10, below: fl
 
 class LiveErrors:
     """A live run's centre error per frame, from its frames' truths and its estimates as they arrive,
-    in either order: an estimate comes from the tracker and its frame's truth from ingest, and on a
-    loaded machine the estimate can arrive first. An estimate waits for its frame's truth until that
-    frame's, or a later frame's, has come (truths come in frame order; a frame whose truth never
-    comes is not scored). ``errors``: frame index -> error (px), NaN where the target was hidden or
-    the frame has no truth."""
+    in either order (:class:`common.await_info.AwaitInfo`: an estimate waits for its frame's info, or
+    a later frame's; a frame whose info never comes is not scored). ``errors``: frame index -> error
+    (px), NaN where the target was hidden or the frame has no truth."""
 
     def __init__(self):
         self.errors: dict[int, float] = {}
         self._truths: dict[int, tuple[float, float, bool]] = {}
-        self._waiting: dict[int, tuple[float, float]] = {}
-        self._latest = -1
+        self._waiting: AwaitInfo[tuple[int, float, float]] = AwaitInfo()
 
     def truth(self, index: int, cx: float, cy: float, visible: bool) -> None:
         """Frame ``index``'s true centre (pixels) and whether the target is visible on it."""
-        index = int(index)
-        self._truths[index] = (float(cx), float(cy), bool(visible))
+        self._truths[int(index)] = (float(cx), float(cy), bool(visible))
         self.frame(index)
 
     def frame(self, index: int) -> None:
-        """Frame ``index``'s info has come (with or without a truth): earlier estimates still waiting
-        will get none."""
-        index = int(index)
-        self._latest = max(self._latest, index)
-        for k in [k for k in self._waiting if k <= self._latest]:
-            self._score(k, *self._waiting.pop(k))
+        """Frame ``index``'s info has come (with or without a truth)."""
+        for w in self._waiting.info(int(index)):
+            self._score(*w)
 
     def estimate(self, index: int, x: float, y: float) -> None:
         """Frame ``index``'s estimated centre (pixels)."""
-        index = int(index)
-        self.errors.setdefault(index, float("nan"))
-        if index in self._truths or index <= self._latest:
-            self._score(index, x, y)
-        else:
-            self._waiting[index] = (float(x), float(y))
+        self.errors.setdefault(int(index), float("nan"))
+        for w in self._waiting.hold(int(index), (int(index), float(x), float(y))):
+            self._score(*w)
 
     def _score(self, index: int, x: float, y: float) -> None:
         t = self._truths.pop(index, None)

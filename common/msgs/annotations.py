@@ -24,6 +24,7 @@ from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
 from google.protobuf.timestamp_pb2 import Timestamp
 
+from common.await_info import AwaitInfo
 from common.msgs import unpack
 from common.msgs.convert import cloud_field
 from common.tracking.state import oriented_box_corners
@@ -135,10 +136,9 @@ class TrackDrawing:
     """A run's messages joined into one ``ImageAnnotations`` a frame, as they arrive: the frame's
     ``FrameInfo`` (its truth), its ``Estimate`` and its ``ParticleCloud``, which the tracker
     publishes right after the estimate (without a cloud, the drawing is complete with the next
-    estimate or at :meth:`flush`). The info comes from ingest and the estimate from the tracker,
-    so an estimate (and its cloud) may arrive before its frame's info: such a drawing waits until
-    that info, or a later frame's, has come (the infos come in frame order), at most ``keep``
-    drawings, the oldest going out first when more wait, and all of them at :meth:`flush`. A
+    estimate or at :meth:`flush`). An estimate (and its cloud) may arrive before its frame's info:
+    such a drawing waits for it (:class:`common.await_info.AwaitInfo`), at most ``keep`` drawings,
+    the oldest going out first when more wait, and all of them at :meth:`flush`. A
     ``MultiEstimate`` is drawn at once. Each method returns the (log time, serialised annotations)
     completed by that message."""
 
@@ -146,10 +146,8 @@ class TrackDrawing:
         self.truth: dict[int, object] = {}
         self.keep = keep
         self.pending = None  # (estimate, log time): waiting for its cloud
-        self.waiting: list[tuple[object, int, object]] = []
-        """(estimate, log time, cloud or None) drawings complete but for their frame's info."""
-        self.info_index = -1
-        """The latest frame whose info has come (-1: none yet)."""
+        self.waiting: AwaitInfo[tuple] = AwaitInfo(keep)
+        """(estimate, log time, cloud or None): drawings complete but for their frame's info."""
 
     def info(self, info) -> list[tuple[int, bytes]]:
         if info.end_of_stream:
@@ -158,10 +156,7 @@ class TrackDrawing:
             self.truth[int(info.index)] = info.truth
             while len(self.truth) > self.keep:
                 del self.truth[next(iter(self.truth))]
-        self.info_index = max(self.info_index, int(info.index))
-        ready = [w for w in self.waiting if int(w[0].frame_index) <= self.info_index]
-        self.waiting = [w for w in self.waiting if int(w[0].frame_index) > self.info_index]
-        return [self._draw(*w) for w in ready]
+        return [self._draw(*w) for w in self.waiting.info(int(info.index))]
 
     def estimate(self, est, log_time: int) -> list[tuple[int, bytes]]:
         out = []
@@ -182,19 +177,13 @@ class TrackDrawing:
 
     def flush(self) -> list[tuple[int, bytes]]:
         """Every drawing still held: those waiting for their frame's info, then the last estimate's."""
-        held = self.waiting + ([(*self.pending, None)] if self.pending is not None else [])
-        self.waiting, self.pending = [], None
+        held = self.waiting.flush() + ([(*self.pending, None)] if self.pending is not None else [])
+        self.pending = None
         return [self._draw(*w) for w in held]
 
     def _complete(self, est, t: int, cloud) -> list[tuple[int, bytes]]:
         """A frame's drawing, complete but for its info: drawn if that has come, else held."""
-        if int(est.frame_index) <= self.info_index:
-            return [self._draw(est, t, cloud)]
-        self.waiting.append((est, t, cloud))
-        out = []
-        while len(self.waiting) > self.keep:
-            out.append(self._draw(*self.waiting.pop(0)))
-        return out
+        return [self._draw(*w) for w in self.waiting.hold(int(est.frame_index), (est, t, cloud))]
 
     def _draw(self, est, t: int, cloud) -> tuple[int, bytes]:
         return t, estimate_annotations(est, t, cloud, self.truth.get(int(est.frame_index))).SerializeToString()
