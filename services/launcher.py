@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.evaluation import LiveErrors
+from common.evaluation import LiveErrors, LiveMultiErrors
 from common.record.meta import run_config_json
 from common.settings import TrackerSettings
 
@@ -472,9 +472,9 @@ class Pipeline:
         inbox = Inbox()
         guard = Guard("launcher", Senders(self.ids), log)
         order = FrameOrder()
-        live = LiveErrors()  # single target: the estimates' centre errors, whatever their order with the truths
-        people: dict[int, np.ndarray] = {}  # multi-target: true part centres of the body model per frame
-        errors: dict[int, float] = {}  # multi-target: the mean error of the parts per frame
+        # the estimates' errors, whatever their order with the frames' truths: single target (centre)
+        # or multi-target (the mean over the body model's parts)
+        live = LiveErrors() if self.multi is None else LiveMultiErrors()
         t0 = time.monotonic()
         first_t = last_t = None
         infos_seen = 0
@@ -554,15 +554,15 @@ class Pipeline:
                         total = info.total_frames
                         bar.total = total
                         bar.refresh()
-                    if info.HasField("truth") and not info.end_of_stream:
+                    if info.end_of_stream:
+                        pass
+                    elif self.multi is not None and (gt := people_truth_parts(info, self.multi.config.n_parts)) is not None:
+                        live.truth(info.index, gt)
+                    elif self.multi is None and info.HasField("truth"):
                         t = info.truth
                         live.truth(info.index, t.centre_x, t.centre_y, t.visible)
-                    elif not info.end_of_stream:
+                    else:
                         live.frame(info.index)
-                    if self.multi is not None and not info.end_of_stream:
-                        gt = people_truth_parts(info, self.multi.config.n_parts)
-                        if gt is not None:
-                            people[info.index] = gt
                 take_statuses()
                 for e in take_estimates("estimate", "track/estimate", Estimate, check_estimate, final):
                     self.latencies.append(e.latency_ms)
@@ -582,16 +582,10 @@ class Pipeline:
                     now = time.monotonic()
                     first_t = first_t or now
                     last_t = now
-                    gt = people.pop(e.frame_index, None)
-                    for k in [k for k in people if k < e.frame_index]:  # skipped frames: bounded
-                        del people[k]
-                    err = float("nan")
-                    if gt is not None and len(gt) == e.targets:  # targets in the scene's person order
-                        try:
-                            err = float(np.mean(np.linalg.norm(msg_positions(e) - gt, axis=-1)))
-                        except ValueError:
-                            guard.reject("track/multi_estimate", "bad_positions")
-                    errors[e.frame_index] = err
+                    try:
+                        live.estimate(e.frame_index, msg_positions(e))  # targets in the scene's person order
+                    except ValueError:
+                        guard.reject("track/multi_estimate", "bad_positions")
                     bar.update(1)
                     if on_estimate is not None:
                         on_estimate(self, e)
@@ -620,7 +614,7 @@ class Pipeline:
             for s in subs if "subs" in locals() else []:
                 s.undeclare()
             self.close()
-        errors = {**live.errors, **errors}
+        errors = live.errors
         n = len(errors)
         errs = np.array([e for e in errors.values() if np.isfinite(e)])
         fps = (n - 1) / (last_t - first_t) if n > 1 and last_t > first_t else 0.0

@@ -66,3 +66,35 @@ def test_live_errors_score_an_estimate_that_arrives_before_its_truth():
     e = live.errors
     assert e[0] == 5.0 and e[2] == 5.0 and e[5] == 5.0
     assert all(math.isnan(e[k]) for k in (1, 3, 4)) and sorted(e) == [0, 1, 2, 3, 4, 5]
+
+
+def test_live_multi_errors_score_the_parts_whatever_the_order_and_keep_no_stale_truths():
+    """``LiveMultiErrors`` (the launcher's multi-target summary): the mean distance over targets and
+    parts, the same whichever of a frame's estimate and truth comes first (scored on arrival, as the
+    launcher did before, frame 1 would be NaN); NaN where the estimate's targets are not the truth's
+    people; a frame the tracker skipped leaves no truth behind once a later frame is scored."""
+    import math
+
+    import numpy as np
+
+    from common.evaluation import LiveMultiErrors
+
+    gt = np.zeros((2, 3, 2))  # two people, three parts
+    est = gt.copy()
+    est[0, :, 0] = 3.0  # person 0's parts 3 px right
+    est[1, :, 1] = 4.0  # person 1's 4 px down: mean (3 + 4) / 2
+    live = LiveMultiErrors()
+    live.truth(0, gt)
+    live.estimate(0, est)
+    live.estimate(1, est)  # before frame 1's truth
+    assert math.isnan(live.errors[1])
+    live.truth(1, gt + [0.0, 4.0])  # person 0 now 5 px off, person 1 on the truth: mean 2.5
+    live.truth(2, gt)  # frame 2: the tracker skips it
+    live.truth(3, gt)
+    live.estimate(3, est[:1])  # one target for two people: not comparable
+    live.truth(4, gt)
+    live.estimate(4, est)
+    e = live.errors
+    assert e[0] == 3.5 and e[1] == 2.5 and e[4] == 3.5
+    assert math.isnan(e[3]) and sorted(e) == [0, 1, 3, 4]
+    assert live._truths == {}  # frame 2's truth went with frame 3's estimate

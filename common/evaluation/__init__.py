@@ -76,20 +76,21 @@ def recovered(errors: np.ndarray, start: int | None, within: int = 10, below: fl
     return False
 
 
-class LiveErrors:
-    """A live run's centre error per frame, from its frames' truths and its estimates as they arrive,
-    in either order (:class:`common.await_info.AwaitInfo`: an estimate waits for its frame's info, or
-    a later frame's; a frame whose info never comes is not scored). ``errors``: frame index -> error
-    (px), NaN where the target was hidden or the frame has no truth."""
+class _LiveScores:
+    """A live run's error per frame, from its frames' truths and its estimates as they arrive, in
+    either order (:class:`common.await_info.AwaitInfo`: an estimate waits for its frame's info, or a
+    later frame's; a frame whose info never comes is not scored). ``errors``: frame index -> error,
+    NaN where nothing could be scored. The estimates come in frame order (one tracker's stream), so a
+    frame's estimate, once scored, lets go of every earlier frame's truth still kept (a frame the
+    tracker skipped): a live camera's run keeps no truths it will not read."""
 
     def __init__(self):
         self.errors: dict[int, float] = {}
-        self._truths: dict[int, tuple[float, float, bool]] = {}
-        self._waiting: AwaitInfo[tuple[int, float, float]] = AwaitInfo()
+        self._truths: dict[int, object] = {}
+        self._waiting: AwaitInfo[tuple[int, object]] = AwaitInfo()
 
-    def truth(self, index: int, cx: float, cy: float, visible: bool) -> None:
-        """Frame ``index``'s true centre (pixels) and whether the target is visible on it."""
-        self._truths[int(index)] = (float(cx), float(cy), bool(visible))
+    def _truth(self, index: int, truth) -> None:
+        self._truths[int(index)] = truth
         self.frame(index)
 
     def frame(self, index: int) -> None:
@@ -97,13 +98,55 @@ class LiveErrors:
         for w in self._waiting.info(int(index)):
             self._score(*w)
 
-    def estimate(self, index: int, x: float, y: float) -> None:
-        """Frame ``index``'s estimated centre (pixels)."""
+    def _estimate(self, index: int, estimate) -> None:
         self.errors.setdefault(int(index), float("nan"))
-        for w in self._waiting.hold(int(index), (int(index), float(x), float(y))):
+        for w in self._waiting.hold(int(index), (int(index), estimate)):
             self._score(*w)
 
-    def _score(self, index: int, x: float, y: float) -> None:
+    def _score(self, index: int, estimate) -> None:
         t = self._truths.pop(index, None)
-        if t is not None and t[2] and math.isfinite(t[0]) and math.isfinite(t[1]):
-            self.errors[index] = float(math.hypot(x - t[0], y - t[1]))
+        for k in [k for k in self._truths if k < index]:
+            del self._truths[k]
+        if t is not None:
+            self.errors[index] = self._error(t, estimate)
+
+    def _error(self, truth, estimate) -> float:
+        raise NotImplementedError
+
+
+class LiveErrors(_LiveScores):
+    """A single-target run's centre error per frame (px), NaN where the target was hidden or the
+    frame has no truth (see :class:`_LiveScores` for the order)."""
+
+    def truth(self, index: int, cx: float, cy: float, visible: bool) -> None:
+        """Frame ``index``'s true centre (pixels) and whether the target is visible on it."""
+        self._truth(index, (float(cx), float(cy), bool(visible)))
+
+    def estimate(self, index: int, x: float, y: float) -> None:
+        """Frame ``index``'s estimated centre (pixels)."""
+        self._estimate(index, (float(x), float(y)))
+
+    def _error(self, truth, estimate) -> float:
+        cx, cy, visible = truth
+        if not (visible and math.isfinite(cx) and math.isfinite(cy)):
+            return float("nan")
+        return float(math.hypot(estimate[0] - cx, estimate[1] - cy))
+
+
+class LiveMultiErrors(_LiveScores):
+    """A multi-target run's error per frame: the mean distance (px) between each estimated part
+    centre and the true one, targets in the scene's person order; NaN where the frame has no truth
+    or the estimate's targets are not the truth's people (see :class:`_LiveScores` for the order)."""
+
+    def truth(self, index: int, parts: np.ndarray) -> None:
+        """Frame ``index``'s true part centres, (people, parts, 2)."""
+        self._truth(index, np.asarray(parts, float))
+
+    def estimate(self, index: int, positions: np.ndarray) -> None:
+        """Frame ``index``'s estimated part centres, (targets, parts, 2)."""
+        self._estimate(index, np.asarray(positions, float))
+
+    def _error(self, truth, estimate) -> float:
+        if truth.shape != estimate.shape:
+            return float("nan")
+        return float(np.mean(np.linalg.norm(estimate - truth, axis=-1)))
