@@ -155,6 +155,32 @@ def test_beta_ratio_defaults_and_edges():
     assert np.all(np.isfinite(BetaRatioLikelihood(b1=2.0).log_ratio(np.array([0.0, 1.0]))))
 
 
+def test_a_tempered_ratio_counts_a_frame_as_that_fraction_of_an_observation():
+    """``temper`` raises the ratio to its power in the filter's update (V = 1), leaves V = 0 and the
+    model's own ``log_ratio`` alone; 1 (every profile's) is the model as fitted, bit for bit."""
+    from common.settings import profile_for
+    from common.sources import open_source
+
+    z = np.array([0.05, 0.3, 0.6, 0.8, 0.95])
+    full = BetaRatioLikelihood(a1=5.69, b1=2.81, a0=0.25, b0=8.08)
+    half = full.model_copy(update={"temper": 0.5})
+    assert np.array_equal(half.log_ratio(z), full.log_ratio(z))
+    ll_full, ll_half = full.log_likelihood(z), half.log_likelihood(z)
+    assert np.array_equal(ll_half[:, 0], np.zeros(5))
+    assert np.allclose(ll_half[:, 1], 0.5 * ll_full[:, 1], rtol=0, atol=1e-12)
+    # a look-alike scoring 0.8 against a half-hidden target's 0.6: its weight's lead per frame is the
+    # square root of the full model's (the full lead is e^{5.3} here)
+    lead_full = ll_full[3, 1] - ll_full[2, 1]
+    assert lead_full > 5.0 and ll_half[3, 1] - ll_half[2, 1] == pytest.approx(lead_full / 2, abs=1e-12)
+    with pytest.raises(ValueError):
+        BetaRatioLikelihood(temper=0.0)
+    with pytest.raises(ValueError):
+        BetaRatioLikelihood(temper=1.5)
+    assert np.array_equal(BetaRatioLikelihood(temper=1.0).log_likelihood(z)[:, 1], BetaRatioLikelihood().log_ratio(z))
+    for source in ("exit:0", "synthetic:0"):
+        assert profile_for(open_source(source, n_frames=2), seed=0).rbpf.likelihood.temper == 1.0
+
+
 def test_exponential_likelihood():
     lik = ExponentialScoreLikelihood()
     assert (lik.k, lik.nv_c) == (5.0, 0.2)  # Nelson Table I

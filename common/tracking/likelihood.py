@@ -70,8 +70,16 @@ class BetaRatioLikelihood(BaseModel):
             + betaln(self.a0, self.b0)
         )
 
+    temper: float = Field(1.0, gt=0.0, le=1.0)
+    """The exponent of the likelihood ratio in the filter's update, p(Z | S, V = 1) ∝ ratio^temper (a
+    power, or tempered, likelihood; ours): 1 is the model as fitted. Below 1 each frame's scores count
+    as that fraction of an independent observation, the usual correction where a likelihood fitted
+    hypothesis by hypothesis meets observations that are not independent from frame to frame. No profile
+    tempers yet: the real profile at a half is measured in docs/real-footage.md (stop 54). ``log_ratio``
+    itself stays the model's."""
+
     def log_likelihood(self, scores: np.ndarray) -> np.ndarray:
-        lr = self.log_ratio(scores)
+        lr = self.log_ratio(scores) * self.temper
         return np.stack([np.zeros_like(lr), lr], axis=-1)
 
 
