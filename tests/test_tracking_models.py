@@ -169,7 +169,7 @@ def test_a_tempered_ratio_counts_a_frame_as_that_fraction_of_an_observation():
     assert np.array_equal(ll_half[:, 0], np.zeros(5))
     assert np.allclose(ll_half[:, 1], 0.5 * ll_full[:, 1], rtol=0, atol=1e-12)
     # a look-alike scoring 0.8 against a half-hidden target's 0.6: its weight's lead per frame is the
-    # square root of the full model's (the full lead is e^{5.3} here)
+    # square root of the full model's (the full lead is e^{5.2} here)
     lead_full = ll_full[3, 1] - ll_full[2, 1]
     assert lead_full > 5.0 and ll_half[3, 1] - ll_half[2, 1] == pytest.approx(lead_full / 2, abs=1e-12)
     with pytest.raises(ValueError):
