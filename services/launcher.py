@@ -555,10 +555,14 @@ class Pipeline:
                         bar.total = total
                         bar.refresh()
                     if info.end_of_stream:
-                        pass
-                    elif self.multi is not None and (gt := people_truth_parts(info, self.multi.config.n_parts)) is not None:
-                        live.truth(info.index, gt)
-                    elif self.multi is None and info.HasField("truth"):
+                        continue
+                    if self.multi is not None:
+                        gt = people_truth_parts(info, self.multi.config.n_parts)
+                        if gt is not None:
+                            live.truth(info.index, gt)
+                        else:
+                            live.frame(info.index)
+                    elif info.HasField("truth"):
                         t = info.truth
                         live.truth(info.index, t.centre_x, t.centre_y, t.visible)
                     else:

@@ -68,23 +68,17 @@ def main() -> None:
 
     runner.measure_scale_change = recorded
     src = open_source(a.sequence)
-    truth = getattr(src, "truth", None)  # a folder's boxes; a synthetic scene's come with each frame
-    no_truth = (f"error: {a.sequence} has no ground truth for its first frame: the trace starts from it (a "
-                "UAV123/OTB folder with groundtruth_rect.txt, or a synthetic scene such as exit:0)")
-    if truth is not None and (not truth or truth[0] is None):
-        raise SystemExit(no_truth)
     settings = apply_overrides(profile_for(src, seed=a.seed), a.overrides)
     tracker = None
     stretches: list[list] = []
     hits = []
     for i, frame in enumerate(src):  # one frame at a time: a long sequence is not held in memory
-        if truth is not None:
-            box = truth[i] if i < len(truth) else None
-        else:
-            box = None if frame.truth is None else frame.truth.box
+        box = None if frame.truth is None else frame.truth.box  # a folder's box, or a synthetic scene's
         if tracker is None:
             if box is None:
-                raise SystemExit(no_truth)
+                raise SystemExit(f"error: {a.sequence} has no ground truth for its first frame: the trace starts "
+                                 "from it (a UAV123/OTB folder with groundtruth_rect.txt, or a synthetic scene "
+                                 "such as exit:0)")
             tracker = runner.Tracker.start(frame, box, settings)
         measured.clear()
         searches = tracker.reacquirer.searches if tracker.reacquirer is not None else 0
