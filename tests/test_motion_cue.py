@@ -195,25 +195,28 @@ def track_errors(frames, cue: bool, seed: int, size=(10, 7)):
 
 def test_a_small_car_over_textured_ground_is_held_with_the_cue_and_lost_without():
     """A 10x7 px low-contrast car at 1.5 px/frame: its template is mostly the ground around it, and
-    the polar match alone does not hold it whatever the filter's seed (over 40 px off on every seed
-    while such a car was enlarged 4x, 25-92 px enlarged to the design size, stop 46; on an AMD EPYC
-    two seeds of six stay 15-17 px off over the last second, 35-38 px at worst: stop 52); with the cue
-    the track stays on the car in most runs (the cue re-weights the particles it reaches: a run whose
-    cloud has left the car before the cue takes hold is lost as without it; 3 of seeds 0-4 hold when
-    this was written, 6 of 0-5 on the AMD machine). Held: within 12 px (about a car length) over the
-    last second and never beyond 25 px, one criterion for both."""
+    the polar match alone does not hold it (over 40 px off on every seed while such a car was
+    enlarged 4x, 25-92 px enlarged to the design size, stop 46; on an AMD EPYC two seeds of six
+    stay 15-17 px off over the last second, 35-38 px at worst: stop 52; with the likelihood tempered
+    to a half, stop 55, one seed of six, seed 0, stays within 12 px over the last second, drifting
+    off to 21 px by the last frame, and the other five end 26-80 px off); with the cue the track
+    stays on the car in most runs (the cue re-weights the particles it reaches: a run whose cloud
+    has left the car before the cue takes hold is lost as without it; 3 of seeds 0-4 hold when this
+    was written, 6 of 0-5 on the AMD machine, with the model as fitted and tempered). Held: within
+    12 px (about a car length) over the last second and never beyond 25 px, one criterion for both."""
     def held(err):
         return bool(np.median(err[-30:]) < 12.0 and err.max() < 25.0)
 
     frames = scene(90, speed=1.5, contrast=15.0)
-    holds = []
+    holds, plain_holds = [], []
     for seed in range(4):
         plain, off = track_errors(frames, cue=False, seed=seed)
         cued, on = track_errors(frames, cue=True, seed=seed)
         assert plain.motion_cue is None and cued.motion_cue is not None
-        assert not held(off), (seed, off[-30:].round(1))
+        plain_holds.append(held(off))
         holds.append(held(on))
-    assert sum(holds) >= 2, holds
+    assert sum(plain_holds) <= 1, plain_holds
+    assert sum(holds) >= 2 and sum(holds) >= sum(plain_holds) + 2, (holds, plain_holds)
 
 
 @pytest.mark.parametrize("size, box", [((10, 7), (10, 7)), ((30, 20), (10, 7))])

@@ -83,12 +83,14 @@ def test_target_leaving_and_returning_is_reacquired(exit_source):
     assert err[relocks[0]] < quarter and err[relocks[0] + 1] < half and np.all(err[relocks[0] + 2:] < tenth)
     assert tracker.reacquirer.detections == 1 and tracker.reacquirer.mover_detections == 1
     # while lost the estimate stays in the frame (the filter's MAP there, else where the target was
-    # last held): the target left by the right edge, the estimate stays within 5 footprints of it
-    # (measured: 4.0, the lost cloud's MAP drifting about), and nothing is reported beyond the frame
+    # last held): nothing is reported beyond the frame. Where in the frame is the lost cloud's MAP,
+    # which drifts: on this scene within 5 footprints of the right edge with the model as fitted, 798
+    # px from it with the likelihood tempered; over exit scenes 0-4 and filter seeds 0-1, more than 5
+    # footprints from it on 4 runs of 10 as fitted and 5 tempered (stop 55)
     lost = [i for i, r in enumerate(rows) if r[6]]
     assert len(lost) > 10
     xy = np.array([rows[i][7] for i in lost])
-    assert np.all(xy[:, 0] > 1280 - 5 * SUPPORT_RADIUS_PX) and np.all(xy[:, 0] <= 1279)
+    assert np.all((xy[:, 0] >= 0) & (xy[:, 0] <= 1279))
     assert np.all((xy[:, 1] >= 0) & (xy[:, 1] <= 719))
 
     off = st.model_copy(update={"reacquisition": st.reacquisition.model_copy(update={"enabled": False})})
@@ -173,9 +175,12 @@ def test_scale_follows_a_10x_zoom():
         iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
         return ix * iy / (a[2] * a[3] + b[2] * b[3] - ix * iy)
     assert np.median([iou(r[4], r[5]) for r in rows]) > 0.6
-    # negative control: without the scale search the size stays at the first box
+    # negative control: without the scale search the size stays at the first box (and without the
+    # re-acquisition, whose restart takes the scale it detects at: with the likelihood tempered, stop
+    # 55, a track of a car grown 2.5x past its template is declared lost and restarted at 2.5x)
     off = profile_for(src)
-    off = off.model_copy(update={"scale": off.scale.model_copy(update={"mode": "off"})})
+    off = off.model_copy(update={"scale": off.scale.model_copy(update={"mode": "off"}),
+                                 "reacquisition": off.reacquisition.model_copy(update={"enabled": False})})
     tracker_off, rows_off = _track(ZoomSource(seed=0, n_frames=40), off)
     assert rows_off[-1][2] == pytest.approx(max(first[2:]))
 
@@ -186,11 +191,13 @@ def test_the_camera_zoom_carries_the_scale_only_while_the_target_is_held(held):
     point (10x over 60 frames: 3.9 % a frame). While it does not (p(V=1|Z) under ``lost_p_visible``,
     the track not yet declared lost), the estimate may be anywhere (the last held point at the
     frame's edge, the background), the zoom there is not the target's, and the scale is kept. No
-    scale search after the first frame's, so that only the zoom (and the target's own flow, measured
-    only while held) moves it."""
+    scale search after the first frame's and the target's own flow off, so that only the zoom moves
+    it (the flow, measured only while held, adds its own reading of the car's growth: 4.6 % on this
+    frame with the model as fitted, 5.1 % with the likelihood tempered, stop 55, for the zoom's 4.0 %)."""
     src = ZoomSource(seed=0)
     st = profile_for(src)
-    st = st.model_copy(update={"scale": st.scale.model_copy(update={"search_interval_s": 1e6})})
+    st = st.model_copy(update={"scale": st.scale.model_copy(update={
+        "search_interval_s": 1e6, "flow": st.scale.flow.model_copy(update={"enabled": False})})})
     f0 = src.frame(0)
     tracker = Tracker.start(f0, f0.truth.box, st)
     for i in range(10):
@@ -205,7 +212,7 @@ def test_the_camera_zoom_carries_the_scale_only_while_the_target_is_held(held):
     grown = max(src.frame(10).truth.box[2:]) / max(src.frame(9).truth.box[2:])
     assert grown == pytest.approx(10 ** (1 / 59))
     if held:
-        assert tracker.scale.s / before == pytest.approx(grown, rel=0.01)
+        assert tracker.scale.s / before == pytest.approx(grown, rel=1e-3)
     else:
         assert tracker.scale.s == before
 
@@ -975,7 +982,10 @@ def test_a_restart_off_the_target_by_half_its_length_converges_onto_it(exit_sour
     within two frames by the restart's spread (``restart_pos_lengths``, a quarter length); with a
     cloud a quarter of the search grid's step wide (0.075 lengths, the negative control) it stays on
     the displaced mode for frames. Median over five filter seeds of the error two to five frames on
-    (measured: 1-2 px against 17-40 px; the car 52 px long)."""
+    (measured: 1-2 px with the quarter length; the car 52 px long). The narrow cloud's, two and
+    three frames on: 19-41 px; with the likelihood tempered to a half (stop 55) the narrow cloud
+    ahead of the car reaches it four frames on (4.5 and 2.7 px), so only those two frames are the
+    control."""
     src = exit_source
     frames = [src.frame(i) for i in range(12)]
     length = max(frames[0].truth.box[2:])
@@ -1003,4 +1013,4 @@ def test_a_restart_off_the_target_by_half_its_length_converges_onto_it(exit_sour
     assert profile_for(src).reacquisition.restart_pos_lengths == 0.25
     for direction in (1.0, -1.0):  # ahead of the car, behind it
         assert np.all(errors(0.25, direction) < 0.1 * length)
-        assert np.mean(errors(0.075, direction)) > 0.3 * length
+        assert np.all(errors(0.075, direction)[:2] > 0.3 * length)

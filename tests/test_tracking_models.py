@@ -155,30 +155,58 @@ def test_beta_ratio_defaults_and_edges():
     assert np.all(np.isfinite(BetaRatioLikelihood(b1=2.0).log_ratio(np.array([0.0, 1.0]))))
 
 
-def test_a_tempered_ratio_counts_a_frame_as_that_fraction_of_an_observation():
-    """``temper`` raises the ratio to its power in the filter's update (V = 1), leaves V = 0 and the
-    model's own ``log_ratio`` alone; 1 (every profile's) is the model as fitted, bit for bit."""
-    from common.settings import profile_for
-    from common.sources import open_source
+class _ScriptedScores:
+    """Given scores for the filter's particles, in its order, and a given cue's log ratios."""
 
-    z = np.array([0.05, 0.3, 0.6, 0.8, 0.95])
-    full = BetaRatioLikelihood(a1=5.69, b1=2.81, a0=0.25, b0=8.08)
-    half = full.model_copy(update={"temper": 0.5})
-    assert np.array_equal(half.log_ratio(z), full.log_ratio(z))
-    ll_full, ll_half = full.log_likelihood(z), half.log_likelihood(z)
-    assert np.array_equal(ll_half[:, 0], np.zeros(5))
-    assert np.allclose(ll_half[:, 1], 0.5 * ll_full[:, 1], rtol=0, atol=1e-12)
-    # a look-alike scoring 0.8 against a half-hidden target's 0.6: its weight's lead per frame is the
-    # square root of the full model's (the full lead is e^{5.2} here)
-    lead_full = ll_full[3, 1] - ll_full[2, 1]
-    assert lead_full > 5.0 and ll_half[3, 1] - ll_half[2, 1] == pytest.approx(lead_full / 2, abs=1e-12)
-    with pytest.raises(ValueError):
-        BetaRatioLikelihood(temper=0.0)
-    with pytest.raises(ValueError):
-        BetaRatioLikelihood(temper=1.5)
-    assert np.array_equal(BetaRatioLikelihood(temper=1.0).log_likelihood(z)[:, 1], BetaRatioLikelihood().log_ratio(z))
-    for source in ("exit:0", "synthetic:0"):
-        assert profile_for(open_source(source, n_frames=2), seed=0).rbpf.likelihood.temper == 1.0
+    homography = None
+    image_size = (1000, 1000)
+
+    def __init__(self, scores, cue):
+        self.scores, self.cue = np.asarray(scores, float), np.asarray(cue, float)
+
+    def score_at(self, hyps):
+        return self.scores.copy(), np.ones(len(self.scores), bool)
+
+    def cue_log_ratio(self, image_xy):
+        return self.cue.copy()
+
+
+def test_a_tempered_likelihood_counts_a_frame_as_that_fraction_of_an_observation():
+    """``rbpf.temper`` raises the matcher's likelihood to its power in the weight update, not the
+    cue's ratio: w_p ∝ r_p (pi^-_p(0) + pi^-_p(1) ratio(z_p)^T), checked against that expression by
+    hand for three particles; 1 is the model as fitted, bit for bit; the real profile takes
+    ``REAL_LIKELIHOOD_TEMPER``, the synthetic one the model."""
+    from common.settings import REAL_LIKELIHOOD_TEMPER, profile_for
+    from common.sources import open_source
+    from common.tracking import RBPF, NearConstantVelocity, RBPFConfig
+
+    lik = BetaRatioLikelihood(a1=5.69, b1=2.81, a0=0.25, b0=8.08)
+    z = np.array([0.8, 0.6, 0.1])  # a look-alike, the half-hidden target, the ground
+    cue = np.array([0.0, 1.5, -0.5])
+    p_vis = np.array([0.9, 0.5, 0.2])
+    particles = np.array([[10.0, 0.0, 10.0, 0.0, 0.0], [20.0, 0.0, 10.0, 0.0, 0.0], [30.0, 0.0, 10.0, 0.0, 0.0]])
+
+    def weights(temper=None):
+        upd = {"likelihood": lik, "motion": NearConstantVelocity(q_x=0.0, q_y=0.0), "n_particles": 3}
+        if temper is not None:
+            upd["temper"] = temper
+        f = RBPF.from_particles(RBPFConfig(**upd), particles, p_visible=p_vis, time=0.0)
+        return f.step(1.0, _ScriptedScores(z, cue)).weights
+
+    pred = p_vis * 0.9 + (1 - p_vis) * 0.1  # pi^-(1), Pang's chain at 0.1 either way
+    for t in (1.0, 0.5, 0.3):
+        m = np.exp(cue) * ((1 - pred) + pred * np.exp(t * lik.log_ratio(z)))
+        np.testing.assert_allclose(weights(t), m / m.sum(), rtol=1e-12)
+    assert np.array_equal(weights(1.0), weights())
+    # the look-alike's lead over the half-hidden target shrinks: at 1 it takes almost all the weight
+    w1, wh = weights(1.0), weights(0.5)
+    assert w1[0] / w1[1] > 2 * wh[0] / wh[1]
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValidationError):
+            RBPFConfig(temper=bad)
+    assert REAL_LIKELIHOOD_TEMPER == 0.5
+    assert profile_for(open_source("exit:0", n_frames=2), seed=0).rbpf.temper == REAL_LIKELIHOOD_TEMPER
+    assert profile_for(open_source("synthetic:0", n_frames=2), seed=0).rbpf.temper == 1.0
 
 
 def test_exponential_likelihood():

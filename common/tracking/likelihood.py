@@ -56,14 +56,6 @@ class BetaRatioLikelihood(BaseModel):
     an eps of 1e-9 let a rounding difference of 1e-7 between two identical particles on the template's
     own frame weigh 10^5 to 1 and collapse the cloud."""
 
-    temper: float = Field(1.0, gt=0.0, le=1.0)
-    """The exponent of the likelihood ratio in the filter's update, p(Z | S, V = 1) ∝ ratio^temper (a
-    power, or tempered, likelihood; ours): 1 is the model as fitted. Below 1 each frame's scores count
-    as that fraction of an independent observation, the usual correction where a likelihood fitted
-    hypothesis by hypothesis meets observations that are not independent from frame to frame. No profile
-    tempers yet: the real profile at a half is measured in docs/real-footage.md (stop 54). ``log_ratio``
-    itself stays the model's."""
-
     def clipped_score(self, scores: np.ndarray) -> np.ndarray:
         """Z = clip(max(0, score), eps, 1 - eps)."""
         return np.clip(np.maximum(np.asarray(scores, dtype=float), 0.0), self.eps, 1.0 - self.eps)
@@ -79,7 +71,7 @@ class BetaRatioLikelihood(BaseModel):
         )
 
     def log_likelihood(self, scores: np.ndarray) -> np.ndarray:
-        lr = self.log_ratio(scores) * self.temper
+        lr = self.log_ratio(scores)
         return np.stack([np.zeros_like(lr), lr], axis=-1)
 
 

@@ -12,7 +12,8 @@ One step, from t-1 to t with T = t - (t-1) from the timestamps (prior proposal):
     pi^-_p(j)   = sum_i A[i, j] pi_p(i)                            (eq. 25 / A.3)
     l_p(v)      = p(Z_t | S^N_{t,p}, V_t = v)                      (eqs. 15-16, or Nelson eq. 15)
                   (times r_p for both v when the observation carries an independent cue on the
-                  position: the moving-target cue of real footage, common.single_target.motion_cue)
+                  position: the moving-target cue of real footage, common.single_target.motion_cue;
+                  l_p(v) raised to the power ``temper``, 1 in the paper)
     m_p         = sum_v l_p(v) pi^-_p(v)                           (eq. 25 / A.4)
     pi_p(v)     = l_p(v) pi^-_p(v) / m_p                           (A.3)
     w_{t,p}     ∝ w_{t-1,p} m_p                                    (eq. 24 with q = prior)
@@ -56,6 +57,14 @@ class RBPFConfig(ParticleFilterConfig):
     """V_t Markov chain (Pang eq. 11)."""
     likelihood: LikelihoodModel = Field(default_factory=BetaRatioLikelihood)
     """p(Z_t | S_t, V_t) (Pang eqs. 15-19)."""
+    temper: float = Field(1.0, gt=0.0, le=1.0)
+    """Not in the paper: the exponent on the matcher's likelihood in the update, p(Z_t | S_t, V_t)^temper
+    (a power, or tempered, likelihood); an independent cue's ratio r_p is not tempered. 1 (default)
+    is the model as fitted, bit for bit. Below 1 each frame's scores count as that fraction of an
+    independent observation: the correction where a likelihood fitted hypothesis by hypothesis meets
+    errors that persist from frame to frame (the same ground, the same look-alike, the same mismatch
+    of the template), which the product over frames would count again on every frame (Bissiri,
+    Holmes and Walker 2016). The real-footage profile's is ``REAL_LIKELIHOOD_TEMPER`` (common.settings)."""
     resampling: ResamplingScheme = "systematic"
     """Resampling scheme (Pang 2010 §6: systematic)."""
     jump_probability: float = Field(0.0, ge=0.0, le=1.0)
@@ -245,6 +254,10 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         self.particles = self.particles[idx]
         self.log_pv = self.log_pv[idx]
 
+    def _log_likelihood(self, scores: np.ndarray) -> np.ndarray:
+        """log p(Z | S, V = v)^temper for each score, (..., 2) with columns v = 0, 1."""
+        return self.config.temper * self.config.likelihood.log_likelihood(scores)
+
     def _score(self, observation: FrameObservation, image_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One batched query: scores (N,) at the particles' (sampled) orientation and the joint
         log l_p(v) + log pi^-_p(v) (N, 2) there; with the 'grid' proposal, the log m_p it returns
@@ -258,7 +271,7 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         if cfg.orientation_proposal == "prior":
             hyps = np.column_stack([image_xy, self.particles[:, 4]])
             scores, _ = sanitise_scores(*observation.score_at(hyps), n)
-            return scores, log_pv + cfg.likelihood.log_likelihood(scores)
+            return scores, log_pv + self._log_likelihood(scores)
         grid, valid = observation.score_grid(image_xy)
         grid = np.asarray(grid, float)
         valid = np.asarray(valid, bool).reshape(-1)
@@ -267,7 +280,7 @@ class RaoBlackwellisedParticleFilter(ParticleFilter):
         ok = valid & np.all(np.isfinite(grid), axis=1)
         grid = np.where(ok[:, None], np.clip(grid, -1.0, 1.0), 0.0)
         theta, log_m, scores, joint = sample_orientation(grid, self.particles[:, 4], self._theta_sigma,
-                                                         log_pv, cfg.likelihood.log_likelihood, self.rng)
+                                                         log_pv, self._log_likelihood, self.rng)
         self.particles[:, 4] = wrap_degrees(theta)
         # the weight update below takes logaddexp over joint; give it the theta-marginal instead
         corr = log_m - np.logaddexp(joint[:, 0], joint[:, 1])

@@ -153,7 +153,9 @@ class TrackState:
     log_likelihood: float = float("nan")
     """log p(Z_t | Z_1:t-1) estimated by the particles, up to a frame constant (Pang's Omega); 0 if unobserved."""
     score: float | None = None
-    """Raw detector score at the MAP hypothesis (windowed ML: the window maximum); None if unobserved."""
+    """Raw detector score at the MAP: the best of the particles' scores within the kernel's bandwidth
+    of the MAP particle (:func:`neighbourhood_score`; windowed ML: the window maximum); None if
+    unobserved."""
     search_window: tuple[float, float, int] | None = None
     """Windowed ML only: (centre x, centre y, side) of this frame's search window, pixels."""
     size: tuple[float, float] | None = None
@@ -263,6 +265,15 @@ def summarise_particles(
     return i, map_, mmse
 
 
+def kernel_bandwidth2(xy: np.ndarray, w: np.ndarray) -> float:
+    """Scott's squared bandwidth per axis of the weighted cloud ``xy`` (n, 2): the weighted variance
+    per axis times N_eff^(-1/3) (not finite, or 0, for a cloud on one point)."""
+    d = xy - w @ xy
+    var = float(w @ np.sum(d * d, axis=1)) / 2.0
+    n_eff = 1.0 / float(np.sum(w * w))
+    return var * n_eff ** (-1.0 / 3.0)
+
+
 def kernel_mode_index(xy: np.ndarray, w: np.ndarray, max_points: int = 2000) -> int:
     """Index of the point of highest weighted Gaussian-kernel density (Scott's bandwidth).
 
@@ -272,10 +283,7 @@ def kernel_mode_index(xy: np.ndarray, w: np.ndarray, max_points: int = 2000) -> 
     n = len(w)
     if n == 1:
         return 0
-    d = xy - w @ xy
-    var = float(w @ np.sum(d * d, axis=1)) / 2.0
-    n_eff = 1.0 / float(np.sum(w * w))
-    h2 = var * n_eff ** (-1.0 / 3.0)
+    h2 = kernel_bandwidth2(xy, w)
     if not np.isfinite(h2) or h2 <= 0.0:
         return int(np.argmax(w))
     if n <= max_points:
@@ -283,6 +291,22 @@ def kernel_mode_index(xy: np.ndarray, w: np.ndarray, max_points: int = 2000) -> 
     cand = np.argsort(-w, kind="stable")[:max_points]
     dens = kernel_density(xy, w, h2, cand)
     return int(cand[np.argmax(dens)])
+
+
+def neighbourhood_score(xy: np.ndarray, w: np.ndarray, i: int, scores: np.ndarray) -> float:
+    """The best of ``scores`` among the points of ``xy`` within one kernel bandwidth (Scott's, as
+    :func:`kernel_mode_index`) of point ``i``: how well the template matches at the MAP, read at the
+    MAP's own resolution rather than at the one angle and offset its particle drew. The particle
+    at the mode is one draw of the cloud's orientation and position there; the more the posterior
+    is spread (a tempered likelihood, an uncertain frame), the further that draw lies from where
+    the match peaks, and the gates that ask how well the target is matched would read the draw's
+    spread as the target's. Non-finite scores are skipped (the MAP's own score if none is finite)."""
+    s = np.asarray(scores, dtype=float)
+    h2 = kernel_bandwidth2(xy, w) if len(w) > 1 else 0.0
+    d2 = np.sum((xy - xy[i]) ** 2, axis=1)
+    near = (d2 <= h2) if np.isfinite(h2) and h2 > 0.0 else (np.arange(len(s)) == i)
+    near &= np.isfinite(s)
+    return float(np.max(s[near])) if near.any() else float(s[i])
 
 
 def filter_state(frame_time: float, observed: bool, particles: np.ndarray, image_xy: np.ndarray,
@@ -308,5 +332,6 @@ def filter_state(frame_time: float, observed: bool, particles: np.ndarray, image
         weights=weights,
         resampled=n_eff < ess_threshold_fraction * len(particles),
         log_likelihood=float(log_likelihood),
-        score=None if not observed or scores is None else float(scores[i_map]),
+        score=(None if not observed or scores is None
+               else neighbourhood_score(particles[:, [0, 2]], weights, i_map, scores)),
     )
