@@ -86,7 +86,7 @@ def test_target_leaving_and_returning_is_reacquired(exit_source):
     # last held): nothing is reported beyond the frame. Where in the frame is the lost cloud's MAP,
     # which drifts: on this scene within 5 footprints of the right edge with the model as fitted, 798
     # px from it with the likelihood tempered; over exit scenes 0-4 and filter seeds 0-1, more than 5
-    # footprints from it on 4 runs of 10 as fitted and 5 tempered (stop 55)
+    # footprints from it on 2 runs of 10 as fitted and 4 tempered (stop 55)
     lost = [i for i, r in enumerate(rows) if r[6]]
     assert len(lost) > 10
     xy = np.array([rows[i][7] for i in lost])
