@@ -236,8 +236,9 @@ def oriented_box_corners(cx: float, cy: float, w: float, h: float, theta_deg: fl
 
 def summarise_particles(
     particles: np.ndarray, image_xy: np.ndarray, weights: np.ndarray
-) -> tuple[int, Estimate, Estimate]:
-    """(index of the MAP particle, MAP estimate, MMSE estimate) of a weighted particle set.
+) -> tuple[int, Estimate, Estimate, float]:
+    """(index of the MAP particle, MAP estimate, MMSE estimate, the kernel's squared bandwidth) of a
+    weighted particle set.
 
     MAP: the particle at the highest point of the posterior density of the position, estimated
     with a Gaussian kernel over the weighted particles (Pang Fig. 8 shows this kernel
@@ -256,13 +257,13 @@ def summarise_particles(
         x=float(mean[0]), y=float(mean[2]), vx=float(mean[1]), vy=float(mean[3]), theta=mean_theta,
         image_x=float(mean_img[0]), image_y=float(mean_img[1]),
     )  # fmt: skip
-    i = kernel_mode_index(particles[:, [0, 2]], w)
+    i, h2 = kernel_mode(particles[:, [0, 2]], w)
     p = particles[i]
     map_ = Estimate(
         x=float(p[0]), y=float(p[2]), vx=float(p[1]), vy=float(p[3]), theta=float(p[4]),
         image_x=float(image_xy[i, 0]), image_y=float(image_xy[i, 1]),
     )  # fmt: skip
-    return i, map_, mmse
+    return i, map_, mmse, h2
 
 
 def kernel_bandwidth2(xy: np.ndarray, w: np.ndarray) -> float:
@@ -274,35 +275,43 @@ def kernel_bandwidth2(xy: np.ndarray, w: np.ndarray) -> float:
     return var * n_eff ** (-1.0 / 3.0)
 
 
-def kernel_mode_index(xy: np.ndarray, w: np.ndarray, max_points: int = 2000) -> int:
-    """Index of the point of highest weighted Gaussian-kernel density (Scott's bandwidth).
+def kernel_mode(xy: np.ndarray, w: np.ndarray, max_points: int = 2000) -> tuple[int, float]:
+    """(index of the point of highest weighted Gaussian-kernel density, Scott's squared bandwidth
+    it used; 0 for a single point).
 
     Above ``max_points`` points only the ``max_points`` of highest weight are candidates (the
     density is still summed over all), keeping the cost bounded.
     """
     n = len(w)
     if n == 1:
-        return 0
+        return 0, 0.0
     h2 = kernel_bandwidth2(xy, w)
     if not np.isfinite(h2) or h2 <= 0.0:
-        return int(np.argmax(w))
+        return int(np.argmax(w)), h2
     if n <= max_points:
-        return int(np.argmax(kernel_density(xy, w, h2)))
+        return int(np.argmax(kernel_density(xy, w, h2))), h2
     cand = np.argsort(-w, kind="stable")[:max_points]
     dens = kernel_density(xy, w, h2, cand)
-    return int(cand[np.argmax(dens)])
+    return int(cand[np.argmax(dens)]), h2
 
 
-def neighbourhood_score(xy: np.ndarray, w: np.ndarray, i: int, scores: np.ndarray) -> float:
+def kernel_mode_index(xy: np.ndarray, w: np.ndarray, max_points: int = 2000) -> int:
+    """Index of the point of highest weighted Gaussian-kernel density (Scott's bandwidth; :func:`kernel_mode`)."""
+    return kernel_mode(xy, w, max_points)[0]
+
+
+def neighbourhood_score(xy: np.ndarray, w: np.ndarray, i: int, scores: np.ndarray, h2: float | None = None) -> float:
     """The best of ``scores`` among the points of ``xy`` within one kernel bandwidth (Scott's, as
     :func:`kernel_mode_index`) of point ``i``: how well the template matches at the MAP, read at the
     MAP's own resolution rather than at the one angle and offset its particle drew. The particle
     at the mode is one draw of the cloud's orientation and position there; the more the posterior
     is spread (a tempered likelihood, an uncertain frame), the further that draw lies from where
     the match peaks, and the gates that ask how well the target is matched would read the draw's
-    spread as the target's. Non-finite scores are skipped (the MAP's own score if none is finite)."""
+    spread as the target's. Non-finite scores are skipped (the MAP's own score if none is finite).
+    ``h2``: the bandwidth :func:`kernel_mode` already computed for this cloud (None: computed here)."""
     s = np.asarray(scores, dtype=float)
-    h2 = kernel_bandwidth2(xy, w) if len(w) > 1 else 0.0
+    if h2 is None:
+        h2 = kernel_bandwidth2(xy, w) if len(w) > 1 else 0.0
     d2 = np.sum((xy - xy[i]) ** 2, axis=1)
     near = (d2 <= h2) if np.isfinite(h2) and h2 > 0.0 else (np.arange(len(s)) == i)
     near &= np.isfinite(s)
@@ -316,7 +325,7 @@ def filter_state(frame_time: float, observed: bool, particles: np.ndarray, image
     p(V=1|Z) = sum_p w_p v_p (``visibility``: each particle's V or p(V=1)), N_eff and whether it
     falls below ``ess_threshold_fraction * N`` (the filter then resamples)."""
     n_eff = ess(weights)
-    i_map, map_est, mmse_est = summarise_particles(particles, image_xy, weights)
+    i_map, map_est, mmse_est, h2 = summarise_particles(particles, image_xy, weights)
     return TrackState(
         time=float(frame_time),
         observed=observed,
@@ -333,5 +342,5 @@ def filter_state(frame_time: float, observed: bool, particles: np.ndarray, image
         resampled=n_eff < ess_threshold_fraction * len(particles),
         log_likelihood=float(log_likelihood),
         score=(None if not observed or scores is None
-               else neighbourhood_score(particles[:, [0, 2]], weights, i_map, scores)),
+               else neighbourhood_score(particles[:, [0, 2]], weights, i_map, scores, h2)),
     )
