@@ -106,10 +106,14 @@ class SegmentRegistration(BaseModel):
     """The segment (its largest connected component) counts only when its area is within this range
     of the track's box's: a loose first box holds a vehicle in a fifth of it; above twice the box, the
     segment has taken in the road or a neighbour."""
-    min_solidity: float = Field(0.785, ge=0, le=1)
-    """... and when it fills at least this much of its minimum-area rectangle: pi/4, the share of the
-    inscribed ellipse. A vehicle seen from above is a rounded rectangle; a part of one with road or
-    shadow about it is ragged (docs/real-footage.md, stop 35)."""
+    min_solidity: float = Field(0.7, ge=0, le=1)
+    """... and when it fills at least this much of its minimum-area rectangle. A vehicle is about a
+    box: seen from above its outline is a rounded rectangle (0.85-1.0), and seen obliquely, as from
+    a drone that follows it, a hexagon, which fills at least 3/4 of its rectangle from any view (the
+    regular hexagon's share). As the segment's pixels measure it at ``work_px``, a car's outline at
+    its worst view fills 0.72-0.75; 0.7 is that less a margin. A part of one with road or shadow
+    about it is ragged (a part of uavdt-S0310's bus with road about it, 0.46-0.72; docs/real-footage.md,
+    stops 35 and 56)."""
 
 
 class ScaleSettings(BaseModel):
