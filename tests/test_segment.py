@@ -54,9 +54,9 @@ def oblique_car(size, elevation_deg=20.0, azimuth_deg=110.0, centre=(240.0, 180.
 
 def test_a_car_seen_obliquely_is_taken_for_a_vehicle():
     """A car seen obliquely (a following drone's view) is a hexagon, which fills less of its
-    rectangle than a car seen from above: at the worst view, 3/4 drawn exactly and 0.72-0.75 as the
-    segment's pixels measure it. Found where it is and taken, at 30 and 60 px; pi/4, the threshold
-    before stop 56, refused it (the negative control)."""
+    rectangle than a car seen from above: at the worst view, about 3/4 drawn (0.753) and 0.72-0.75
+    as the segment's pixels measure it. Found where it is and taken, at 30 and 60 px; pi/4, the
+    threshold before stop 56, refuses it (the negative control: its fill is under pi/4)."""
     for size in (30, 60):
         hull = oblique_car(size)
         img = road()
