@@ -156,7 +156,12 @@ class ScaleSettings(BaseModel):
     """Scales tried: s / ratio, s, s * ratio."""
     search_max_steps: int = Field(2, ge=0)
     """When the best of the three is at an end, move the three scales that way, at most this many steps
-    (a fast-growing target)."""
+    (a fast-growing target), and never to a scale that cannot be scored."""
+    search_below_footprint: bool = True
+    """Where the template's footprint at the held scale (or the next larger) is not whole in the frame
+    about the estimate, compare the largest scale whose footprint is (at most ``search_max_steps``
+    below) with the next smaller, and move down when the smaller scores better: a scale run too large
+    is otherwise never measured again, and a target as large as the frame shows is not shrunk by it."""
     search_gain: float = Field(1.0, gt=0, le=1)
     """Fraction of the measured log-scale correction applied."""
     search_rate_gain: float = Field(0.3, ge=0, le=1)

@@ -8,7 +8,7 @@ from common.detector import FrameCache, PolarMatcher, Template
 from common.detector.template import FlatTemplateError
 from common.detector.client import make_template, one_off_grid
 from common.detector.observation import DetectorObservation
-from common.detector.resample import ResampledObservation, quantise_factor, sample_template_pmatrix
+from common.detector.resample import ResampledObservation, footprint_inside, quantise_factor, sample_template_pmatrix
 from common.single_target.scale import ScaleTracker, initial_factor
 from common.settings import ScaleSettings
 
@@ -293,3 +293,66 @@ def test_a_measured_restart_owes_no_search():
     made = [swept.maybe_search(0.2 * i, grid_at, State) for i in range(1, 6)]
     assert made == [True] * cfg.searches_after_restart + [False] * (5 - cfg.searches_after_restart)
     assert swept.s != 1.4
+
+
+def _footprint_scene(true_scale, size=(320, 400)):
+    """A 40x20 px first box at the centre of a ``size`` frame, and the frame seen with the target
+    ``true_scale`` times as large: the template's footprint is whole in this frame only up to a
+    scale (``largest``) below 3."""
+    img = texture(size=size, seed=3)
+    centre = (img.shape[1] / 2, img.shape[0] / 2)
+    box = (centre[0] - 20, centre[1] - 10, 40, 20)
+    cfg = ScaleSettings(search_rate_gain=0.0)
+    st = ScaleTracker(cfg, box, metric_homography=False, first_homography=None,
+                      first_world_xy=np.array(centre), t0=0.0)
+    matcher = PolarMatcher(Template(pmatrix=sample_template_pmatrix(img, centre, st.factor()), centre=centre))
+    seen = zoomed(img, centre, true_scale)
+
+    class State:
+        score, p_visible = 0.9, 1.0
+
+        class map_estimate:
+            image_x, image_y = centre
+
+    def grid_at(k, xy):
+        return one_off_grid(0.0, seen, matcher, k, xy)
+
+    def scorable(s):
+        return bool(footprint_inside(np.array([centre]), st.raw_factor(s), (size[1], size[0]))[0])
+
+    largest = max(s for s in np.arange(1.0, 4.0, 0.001) if scorable(s))
+    return cfg, st, State, grid_at, largest
+
+
+def test_a_scale_too_large_to_be_scored_is_searched_down():
+    """A track held at a scale whose footprint, and the next smaller's, is not whole in the frame
+    (car16 frames 430-500, docs/real-footage.md stop 57: the box a third too large, the scale never
+    measured again) is corrected from the largest scale that can be scored and the one below it.
+    Negative control: without the one-sided search the scale stays where it is."""
+    cfg, st, State, grid_at, largest = _footprint_scene(2.4)
+    held = 3.6
+    assert held / cfg.search_ratio > largest >= held / cfg.search_ratio ** 2  # only two steps down is whole
+    st.restart(held, swept=False)
+    for i in range(1, 8):
+        st.maybe_search(0.2 * i, grid_at, State)
+    assert st.s == pytest.approx(2.4, rel=0.06), st.s
+    off = cfg.model_copy(update={"search_below_footprint": False})
+    st2 = ScaleTracker(off, (180, 150, 40, 20), False, None, np.array([200.0, 160.0]), 0.0)
+    st2.restart(held, swept=False)
+    assert not any(st2.maybe_search(0.2 * i, grid_at, State) for i in range(1, 8)) and st2.s == held
+
+
+def test_the_scale_search_stops_at_the_largest_scale_it_can_score():
+    """A target larger than the frame lets the template be scored: the line search moves towards
+    it, but not past the largest scale whose footprint is whole in the frame (it moved one step
+    beyond, to a scale it had not scored, which no later search could then measure), and it is
+    not shrunk by the scales below, which score worse."""
+    cfg, st, State, grid_at, largest = _footprint_scene(3.4)
+    start = largest / cfg.search_ratio ** 2.5
+    st.restart(start, swept=False)
+    seen = []
+    for i in range(1, 8):
+        st.maybe_search(0.2 * i, grid_at, State)
+        seen.append(st.s)
+    assert max(seen) <= largest, (seen, largest)
+    assert st.s >= largest / cfg.search_ratio, (seen, largest)

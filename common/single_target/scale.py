@@ -19,7 +19,11 @@ Settings: :class:`common.settings.ScaleSettings`. The frame is matched resampled
     inverse variance with the target's own change of size where its pixels give one
     (:mod:`common.single_target.target_flow`), and corrected every ``search_interval_s`` by a
     search: the best match over a small neighbourhood of the MAP position and all angles is measured at scales ``s / r, s, s * r``
-    and a parabola through the three (in log scale) gives the correction, clipped to one step.
+    and a parabola through the three (in log scale) gives the correction, clipped to one step
+    (moved on along the scales while the best is at an end, never to one that cannot be scored).
+    Where the template's footprint at ``s`` or ``s * r`` is not whole in the frame about the MAP,
+    only smaller scales can be compared: the largest that can be scored and those below it say
+    whether the target is smaller (``search_below_footprint``), never that it is larger.
 """
 
 from __future__ import annotations
@@ -221,19 +225,40 @@ class ScaleTracker:
 
         centre = 0
         b = [best_at(-1), best_at(0), best_at(1)]
-        if any(v is None for v in b):
+        one_sided = cfg.search_below_footprint and (b[1] is None or b[2] is None)
+        if one_sided:
+            # the footprint at this scale or the next larger is not whole in the frame about the
+            # estimate (a target as large as the frame shows, or a scale run too large): the scales
+            # that can be scored say only whether the target is smaller than the largest of them
+            # (looked for up to search_max_steps below), the parabola through it and the two below
+            # saying by how much (no further: far below the held scale the footprint is wholly in
+            # the frame only where the target is not, at its edge)
+            top = 0
+            while best_at(top) is None and top > -cfg.search_max_steps:
+                top -= 1
+            upper, lower = best_at(top), best_at(top - 1)
+            if upper is None or lower is None or lower <= upper:
+                return False
+            centre = top - 1
+            below = best_at(centre - 1)
+            b = [-math.inf if below is None else below, lower, upper]
+        elif any(v is None for v in b):
             return False
-        # line search: while the best is at an end, move the bracket that way (up to max steps)
-        while not (b[1] >= b[0] and b[1] >= b[2]) and abs(centre) < cfg.search_max_steps:
-            centre += -1 if b[0] > b[2] else 1
-            nxt = best_at(centre + (1 if centre > 0 else -1))
+        # line search: while the best is at an end, move the bracket that way (up to max steps),
+        # not beyond the scales that can be scored
+        while not one_sided and not (b[1] >= b[0] and b[1] >= b[2]) and abs(centre) < cfg.search_max_steps:
+            move = -1 if b[0] > b[2] else 1
+            nxt = best_at(centre + 2 * move)
             if nxt is None:
                 break
-            b = [b[1], b[2], nxt] if centre > 0 else [nxt, b[0], b[1]]
+            centre += move
+            b = [b[1], b[2], nxt] if move > 0 else [nxt, b[0], b[1]]
         self.searches += 1
         b0, b1, b2 = b
         den = b0 - 2 * b1 + b2
-        if b1 >= b0 and b1 >= b2:
+        if b0 == -math.inf:
+            step = 0.0  # the least scale scored: no parabola through it
+        elif b1 >= b0 and b1 >= b2:
             step = 0.5 * (b0 - b2) / den if den < 0 else 0.0
         else:
             step = -1.0 if b0 > b2 else 1.0
