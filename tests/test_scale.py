@@ -197,15 +197,19 @@ def test_a_small_first_box_is_matched_at_the_design_size_and_followed_down_to_wh
     assert old.u == pytest.approx(4.0 if long_side < 12 else u)
 
 
-def test_scale_search_follows_a_growing_target():
-    img = texture(seed=3)
+def _search_scene(true_scale, size=(480, 640), angle=0.0):
+    """A 40x20 px first box at the centre of a ``size`` frame, the frame seen with the target
+    ``true_scale`` times as large (turned by ``angle``), and what the scale search reads: (settings,
+    tracker, the state it gates on, ``grid_at``, the largest scale whose footprint is whole in the
+    frame about the target)."""
+    img = texture(size=size, seed=3)
     centre = (img.shape[1] / 2, img.shape[0] / 2)
     box = (centre[0] - 20, centre[1] - 10, 40, 20)
     cfg = ScaleSettings(search_rate_gain=0.0)
     st = ScaleTracker(cfg, box, metric_homography=False, first_homography=None,
                       first_world_xy=np.array(centre), t0=0.0)
     matcher = PolarMatcher(Template(pmatrix=sample_template_pmatrix(img, centre, st.factor()), centre=centre))
-    img2 = zoomed(img, centre, 1.5, angle=10.0)
+    seen = zoomed(img, centre, true_scale, angle=angle)
 
     class State:  # the bits of a TrackState the search reads
         score, p_visible = 0.9, 1.0
@@ -214,13 +218,22 @@ def test_scale_search_follows_a_growing_target():
             image_x, image_y = centre
 
     def grid_at(k, xy):
-        return one_off_grid(0.0, img2, matcher, k, xy)
+        return one_off_grid(0.0, seen, matcher, k, xy)
 
+    def scorable(s):
+        return bool(footprint_inside(np.array([centre]), st.raw_factor(s), (size[1], size[0]))[0])
+
+    largest = max(s for s in np.arange(1.0, 8.0, 0.001) if scorable(s))
+    return cfg, st, State, grid_at, largest
+
+
+def test_scale_search_follows_a_growing_target():
+    cfg, st, State, grid_at, _ = _search_scene(1.5, angle=10.0)
     for i in range(1, 8):
         st.maybe_search(0.1 * i, grid_at, State)
     assert st.s == pytest.approx(1.5, rel=0.06), st.s
     # not when the target is not seen well
-    st2 = ScaleTracker(cfg, box, False, None, np.array(centre), 0.0)
+    st2 = ScaleTracker(cfg, (300, 230, 40, 20), False, None, np.array([320.0, 240.0]), 0.0)
     State.score = 0.2
     assert not st2.maybe_search(0.5, grid_at, State) and st2.s == 1.0
 
@@ -295,41 +308,12 @@ def test_a_measured_restart_owes_no_search():
     assert swept.s != 1.4
 
 
-def _footprint_scene(true_scale, size=(320, 400)):
-    """A 40x20 px first box at the centre of a ``size`` frame, and the frame seen with the target
-    ``true_scale`` times as large: the template's footprint is whole in this frame only up to a
-    scale (``largest``) below 3."""
-    img = texture(size=size, seed=3)
-    centre = (img.shape[1] / 2, img.shape[0] / 2)
-    box = (centre[0] - 20, centre[1] - 10, 40, 20)
-    cfg = ScaleSettings(search_rate_gain=0.0)
-    st = ScaleTracker(cfg, box, metric_homography=False, first_homography=None,
-                      first_world_xy=np.array(centre), t0=0.0)
-    matcher = PolarMatcher(Template(pmatrix=sample_template_pmatrix(img, centre, st.factor()), centre=centre))
-    seen = zoomed(img, centre, true_scale)
-
-    class State:
-        score, p_visible = 0.9, 1.0
-
-        class map_estimate:
-            image_x, image_y = centre
-
-    def grid_at(k, xy):
-        return one_off_grid(0.0, seen, matcher, k, xy)
-
-    def scorable(s):
-        return bool(footprint_inside(np.array([centre]), st.raw_factor(s), (size[1], size[0]))[0])
-
-    largest = max(s for s in np.arange(1.0, 4.0, 0.001) if scorable(s))
-    return cfg, st, State, grid_at, largest
-
-
 def test_a_scale_too_large_to_be_scored_is_searched_down():
     """A track held at a scale whose footprint, and the next smaller's, is not whole in the frame
     (car16 frames 430-500, docs/real-footage.md stop 57: the box a third too large, the scale never
     measured again) is corrected from the largest scale that can be scored and the one below it.
     Negative control: without the one-sided search the scale stays where it is."""
-    cfg, st, State, grid_at, largest = _footprint_scene(2.4)
+    cfg, st, State, grid_at, largest = _search_scene(2.4, size=(320, 400))
     held = 3.6
     assert held / cfg.search_ratio > largest >= held / cfg.search_ratio ** 2  # only two steps down is whole
     st.restart(held, swept=False)
@@ -347,7 +331,7 @@ def test_the_scale_search_stops_at_the_largest_scale_it_can_score():
     it, but not past the largest scale whose footprint is whole in the frame (it moved one step
     beyond, to a scale it had not scored, which no later search could then measure), and it is
     not shrunk by the scales below, which score worse."""
-    cfg, st, State, grid_at, largest = _footprint_scene(3.4)
+    cfg, st, State, grid_at, largest = _search_scene(3.4, size=(320, 400))
     start = largest / cfg.search_ratio ** 2.5
     st.restart(start, swept=False)
     seen = []
