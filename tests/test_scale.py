@@ -223,8 +223,11 @@ def _search_scene(true_scale, size=(480, 640), angle=0.0):
     def scorable(s):
         return bool(footprint_inside(np.array([centre]), st.raw_factor(s), (size[1], size[0]))[0])
 
-    largest = max(s for s in np.arange(1.0, 8.0, 0.001) if scorable(s))
-    return cfg, st, State, grid_at, largest
+    lo, hi = 1.0, 8.0  # scorable at lo, not at hi: bisect for the largest that is
+    assert scorable(lo) and not scorable(hi)
+    for _ in range(40):
+        lo, hi = ((lo + hi) / 2, hi) if scorable((lo + hi) / 2) else (lo, (lo + hi) / 2)
+    return cfg, st, State, grid_at, lo
 
 
 def test_scale_search_follows_a_growing_target():
