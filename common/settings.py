@@ -106,6 +106,16 @@ class SegmentRegistration(BaseModel):
     """The segment (its largest connected component) counts only when its area is within this range
     of the track's box's: a loose first box holds a vehicle in a fifth of it; above twice the box, the
     segment has taken in the road or a neighbour."""
+    centre_box: bool = True
+    """Fit the reported box to the target's segment as well, every ``interval_s`` while held, where
+    the template is not re-registered (it matches well): the template holds a point of the target,
+    not always its centre (a car's textured end: car16's rear light for 30 frames, 20 px off), and
+    its box is the first box times the scale, whatever the target's outline now; a template that
+    matches well is not moved (``score_quantile``), so the box takes the segment's centre and extent
+    instead, kept in the target's own axes relative to the point the template holds and to the
+    track's box (turned and grown with them). Kept only while that point lies inside the box so
+    fitted; dropped when the template is re-registered or the filter restarted. It changes the
+    reported box alone, never what is tracked (docs/real-footage.md, stop 58)."""
     min_solidity: float = Field(0.7, ge=0, le=1)
     """... and when it fills at least this much of its minimum-area rectangle. A vehicle is about a
     box: seen from above its outline is a rounded rectangle (0.85-1.0), and seen obliquely, as from

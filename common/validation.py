@@ -210,7 +210,8 @@ def check_estimate(e, max_index: int | None = None) -> None:
     frame published or seen, when known)."""
     if e.frame_index < 0 or (max_index is not None and e.frame_index > max_index):
         raise Invalid("unknown_frame", f"frame {e.frame_index} (newest {max_index})")
-    finite(x=e.x, y=e.y, time_s=e.time_s, latency_ms=e.latency_ms, step_ms=e.step_ms)
+    finite(x=e.x, y=e.y, time_s=e.time_s, latency_ms=e.latency_ms, step_ms=e.step_ms, box_dx=e.box_dx,
+           box_dy=e.box_dy)
     if e.frames_skipped < 0:
         raise Invalid("bad_count", f"frames_skipped={e.frames_skipped}")
 

@@ -25,6 +25,11 @@ def test_a_box_turned_by_90_degrees_swaps_its_sides():
     assert math.isclose(max(xs) - min(xs), 10.0, abs_tol=1e-9) and math.isclose(max(ys) - min(ys), 40.0, abs_tol=1e-9)
     assert box.timestamp.ToNanoseconds() == NS and box.type == box.LINE_LOOP
     assert ann.texts[0].text == "p(visible) 0.88" and ann.circles[0].position.x == 100.0
+    moved = roundtrip(estimate_annotations(Estimate(x=100.0, y=50.0, w=40.0, h=10.0, theta_deg=90.0, box_dx=3.0,
+                                                    box_dy=-2.0), NS))
+    xs, ys = [p.x for p in moved.points[0].points], [p.y for p in moved.points[0].points]
+    assert (min(xs) + max(xs)) / 2 == 103.0 and (min(ys) + max(ys)) / 2 == 48.0  # the box about its own centre
+    assert moved.circles[0].position.x == 100.0  # the MAP where it is
 
 
 def test_no_box_no_estimate_and_a_prediction():

@@ -21,7 +21,7 @@ def short_track(tmp_path_factory):
 
 def test_track_csv_and_accuracy(short_track):
     rows = short_track
-    assert list(rows[0].keys()) == ["frame", "x", "y", "theta_deg", "p_visible", "w", "h"]
+    assert list(rows[0].keys()) == ["frame", "x", "y", "theta_deg", "p_visible", "w", "h", "box_x", "box_y"]
     assert [int(r["frame"]) for r in rows] == list(range(40))
     src = open_source("synthetic:2", n_frames=40)
     errs = [np.hypot(float(r["x"]) - src.true_centre(i)[0], float(r["y"]) - src.true_centre(i)[1])

@@ -140,12 +140,14 @@ def test_estimate_carries_the_state_and_its_oriented_box():
     point = SimpleNamespace(image_x=10.5, image_y=20.25, theta=33.0, x=1.0, y=2.0, vx=0.5, vy=-0.5)
     mmse = SimpleNamespace(image_x=11.0, image_y=21.0)
     state = SimpleNamespace(map_estimate=point, mmse_estimate=mmse, time=0.5, observed=True, p_visible=0.9, speed=0.7,
-                            n_eff=123.0, resampled=True, size=(30.0, 12.0), reacquired=False)
+                            n_eff=123.0, resampled=True, size=(30.0, 12.0), reacquired=False, box_offset=(2.5, -1.25))
     e = Estimate.FromString(estimate_msg(6, 0, state, "rbpf").SerializeToString())
     assert (e.frame_index, e.x, e.y, e.theta_deg, e.w, e.h, e.p_visible, e.mmse_x, e.n_eff, e.filter) == (
         6, 10.5, 20.25, 33.0, 30.0, 12.0, 0.9, 11.0, 123.0, "rbpf")
-    no_size = estimate_msg(6, 0, SimpleNamespace(**{**state.__dict__, "size": None, "n_eff": float("nan")}), "sir")
-    assert (no_size.w, no_size.h, no_size.n_eff) == (0.0, 0.0, 0.0)
+    assert (e.box_dx, e.box_dy) == (2.5, -1.25)  # the box's centre apart from the MAP
+    no_size = estimate_msg(6, 0, SimpleNamespace(**{**state.__dict__, "size": None, "n_eff": float("nan"),
+                                                    "box_offset": None}), "sir")
+    assert (no_size.w, no_size.h, no_size.n_eff, no_size.box_dx, no_size.box_dy) == (0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def test_multi_estimate_round_trips_the_parts():

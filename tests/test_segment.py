@@ -37,6 +37,12 @@ def test_segment_of_a_turned_car_gives_its_centre_and_length():
     assert abs(seg.length_px - 60) < 4
     assert abs(seg.area_px - 60 * 28) < 0.15 * 60 * 28  # worked at about half size: a boundary pixel is 4
     assert seg.solidity > 0.9
+    # the second moments give the car's sides along its own axes (a filled rectangle: side^2 / 12)
+    cxx, cxy, cyy = seg.cov
+    sides = np.sqrt(12 * np.linalg.eigvalsh(np.array([[cxx, cxy], [cxy, cyy]])))
+    assert abs(sides[1] - 60) < 4 and abs(sides[0] - 28) < 3
+    axis = np.linalg.eigh(np.array([[cxx, cxy], [cxy, cyy]]))[1][:, 1]
+    assert abs(math.degrees(math.atan2(axis[1], axis[0])) % 180 - 25) < 3  # as cv2.boxPoints turns it
 
 
 def oblique_car(size, elevation_deg=20.0, azimuth_deg=110.0, centre=(240.0, 180.0)):
@@ -189,3 +195,70 @@ def test_the_tracker_re_registers_a_template_drifted_off_the_target():
     assert t_on.registrar.registrations >= 1 and t_off.registrar is None
     assert np.median(off[-10:]) > 0.6 * shift  # negative control: the offset stays
     assert np.median(on[-10:]) < 0.1 * shift  # measured 16.2 px -> 0.5 px
+
+
+def test_the_box_is_centred_on_the_segment_while_the_template_holds_a_point_off_it():
+    """The synthetic car with its template replaced on the third frame by one taken a third of a
+    length along the car (the image's y here), and the registration kept from moving it
+    (``score_quantile`` 0.01: as where the template matches well), so the MAP holds a point 7 px
+    off the car's centre. With ``centre_box`` the reported box's centre is the car's segment's
+    centre, turned with the car as it turns (the offset kept in the target's axes); without it
+    (negative control) the box is centred on the MAP. Nothing tracked changes: the MAP estimates
+    are the same either way."""
+    src = open_source("synthetic:3", n_frames=45)
+    frames = list(src)
+    box = frames[0].truth.box
+    shift = max(box[2:]) / 3
+
+    def run(centre_box):
+        st = profile_for(src, seed=0, preset="real").model_copy(update={
+            "stabilise": "on", "segment": SegmentRegistration(enabled=True, interval_s=0.5, centre_box=centre_box,
+                                                              score_quantile=0.01)})
+        t = Tracker.start(frames[0], box, st)
+        maps, boxes = [], []
+        for f in frames:
+            s = t.step(f)
+            if f.index == 2:  # the drifted template
+                x, y, w, h = f.truth.box
+                assert h > 1.5 * w  # the car's length along y
+                t.template = t.detector.build_template(f, (x + w / 2, y + h / 2 + shift), (x, y + shift, w, h),
+                                                       t.factor)
+                t.adapter = type(t.adapter)(t.template, t.adapter.rate, t.adapter.anchor)
+            cx, cy = f.truth.centre
+            maps.append(math.hypot(s.map_estimate.image_x - cx, s.map_estimate.image_y - cy))
+            bx, by = s.oriented_box()[:2]
+            boxes.append(math.hypot(bx - cx, by - cy))
+        return t, np.asarray(maps), np.asarray(boxes)
+
+    t_on, map_on, box_on = run(True)
+    t_off, map_off, box_off = run(False)
+    assert t_on.registrar.registrations == 0 and t_on.registrar.centrings >= 2
+    turn = abs((frames[-1].truth.angle_deg - frames[3].truth.angle_deg + 180) % 360 - 180)
+    assert turn > 20  # the car turns while the offset is held
+    assert np.array_equal(map_on, map_off)  # the same track
+    assert np.median(box_off[-15:]) > 0.3 * shift  # negative control: the box on the MAP, off the car
+    assert np.median(box_on[-15:]) < 0.15 * shift  # measured 7.2 px -> 1.9 px
+
+
+def test_a_loose_first_box_is_reported_at_the_target_s_size_once_segmented():
+    """A first box 1.4 times the synthetic car's (24 x 50 px) each way: the track's box is the first
+    box times the scale, 33 x 70 px, on every frame without ``centre_box`` (negative control); with
+    it, from the first segmentation on, the box has the segment's extent along the car's axes (its
+    second moments), the car's own size within 10 %. The first box's length ratio
+    (``Registrar.ratio``) is not what sizes it: the segment's moments are measured afresh."""
+    src = open_source("synthetic:3", n_frames=45)
+    frames = list(src)
+    x, y, w, h = frames[0].truth.box
+    loose = (x + w / 2 - 0.7 * w, y + h / 2 - 0.7 * h, 1.4 * w, 1.4 * h)
+
+    def sizes(centre_box):
+        st = profile_for(src, seed=0, preset="real").model_copy(update={
+            "stabilise": "on", "segment": SegmentRegistration(enabled=True, interval_s=0.5, centre_box=centre_box)})
+        t = Tracker.start(frames[0], loose, st)
+        return t, np.array([t.step(f).size for f in frames])
+
+    t_on, on = sizes(True)
+    _, off = sizes(False)
+    assert t_on.registrar.registrations == 0 and t_on.registrar.centrings == 2
+    assert np.all(np.abs(off / (1.4 * w, 1.4 * h) - 1) < 0.05)  # the first box's size, however loose
+    assert np.all(np.abs(on[16:] / (w, h) - 1) < 0.1)  # measured 25 x 49-50 px

@@ -104,6 +104,7 @@ def test_estimates_statuses_and_queries():
     check_estimate(e, max_index=5)
     assert reason(check_estimate, Estimate(frame_index=10**9, x=1, y=1), 5) == "unknown_frame"
     assert reason(check_estimate, Estimate(frame_index=1, x=math.inf, y=1), None) == "not_finite"
+    assert reason(check_estimate, Estimate(frame_index=1, x=1, y=1, box_dy=math.nan), None) == "not_finite"
     check_status(ServiceStatus(service="detector", cpu_s=1.0), "status/detector")
     assert reason(check_status, ServiceStatus(service="tracker"), "status/detector") == "wrong_service"
     assert reason(check_status, ServiceStatus(service="x", cpu_s=math.nan), "status/x") == "not_finite"

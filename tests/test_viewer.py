@@ -352,7 +352,8 @@ def test_viewer_stops_cleanly_on_sigterm(tmp_path):
 
 def test_estimate_box_is_the_estimates_own_size(monkeypatch):
     """Rerun draws the estimate's oriented box from its w, h (the apparent scale), falling back to
-    the first box only when the estimate carries no size."""
+    the first box only when the estimate carries no size, about the box's centre (box_dx, box_dy
+    from the MAP)."""
     import rerun as rr
 
     lg = RunLogger(rr.RecordingStream("polartrack-box", default_enabled=False))
@@ -362,6 +363,9 @@ def test_estimate_box_is_the_estimates_own_size(monkeypatch):
     lg._box_size = (40.0, 20.0)
     lg.estimate(Estimate(frame_index=0, x=100.0, y=50.0, theta_deg=30.0, w=120.0, h=60.0), T0)
     lg.estimate(Estimate(frame_index=1, x=100.0, y=50.0, theta_deg=30.0), T0 + DT)
-    assert drawn == [(100.0, 50.0, 120.0, 60.0, 30.0), (100.0, 50.0, 40.0, 20.0, 30.0)]
+    lg.estimate(Estimate(frame_index=2, x=100.0, y=50.0, theta_deg=30.0, w=120.0, h=60.0, box_dx=4.0, box_dy=-3.0),
+                T0 + 2 * DT)
+    assert drawn == [(100.0, 50.0, 120.0, 60.0, 30.0), (100.0, 50.0, 40.0, 20.0, 30.0),
+                     (104.0, 47.0, 120.0, 60.0, 30.0)]  # the last about the box's own centre
     pts = np.array(real(0.0, 0.0, 120.0, 60.0, 90.0))
     assert np.ptp(pts[:, 0]) == pytest.approx(60.0) and np.ptp(pts[:, 1]) == pytest.approx(120.0)

@@ -82,9 +82,9 @@ def estimate_annotations(est, capture_ns: int, cloud=None, truth=None) -> ImageA
                                                points=_points(xy.tolist()), outline_color=PARTICLES))
     if not _finite(est.x, est.y):
         return out
-    has_box = est.w > 0 and est.h > 0 and _finite(est.w, est.h, est.theta_deg)
+    has_box = est.w > 0 and est.h > 0 and _finite(est.w, est.h, est.theta_deg, est.box_dx, est.box_dy)
     if has_box:
-        corners = oriented_box_corners(est.x, est.y, est.w, est.h, est.theta_deg)
+        corners = oriented_box_corners(est.x + est.box_dx, est.y + est.box_dy, est.w, est.h, est.theta_deg)
         out.points.append(PointsAnnotation(timestamp=stamp, type=PointsAnnotation.LINE_LOOP, thickness=2.0,
                                            points=_points(corners), outline_color=colour))
         top = min(corners, key=lambda p: (p[1], p[0]))

@@ -50,6 +50,7 @@ def msg_to_image(msg: RawImage) -> np.ndarray:
 def estimate_msg(frame_index: int, capture_ns: int, state, filter_name: str, skipped: int = 0,
                  step_ms: float = 0.0) -> Estimate:
     m, mm = state.map_estimate, state.mmse_estimate
+    dx, dy = state.box_offset or (0.0, 0.0)
     return Estimate(
         frame_index=frame_index, time_s=state.time, observed=state.observed, filter=filter_name,
         x=m.image_x, y=m.image_y, theta_deg=m.theta, p_visible=state.p_visible, world_x=m.x, world_y=m.y,
@@ -57,7 +58,7 @@ def estimate_msg(frame_index: int, capture_ns: int, state, filter_name: str, ski
         n_eff=float(state.n_eff) if np.isfinite(state.n_eff) else 0.0, resampled=bool(state.resampled),
         frames_skipped=skipped, step_ms=step_ms, latency_ms=(time.time_ns() - capture_ns) / 1e6,
         w=state.size[0] if state.size else 0.0, h=state.size[1] if state.size else 0.0,
-        reacquired=bool(state.reacquired))
+        reacquired=bool(state.reacquired), box_dx=dx, box_dy=dy)
 
 
 CLOUD_DTYPE = np.float32

@@ -395,10 +395,11 @@ class RunLogger:
                 [[msg.x, msg.y]], colors=colour, radii=rr.Radius.ui_points(5.0),
                 labels=f"MAP theta={msg.theta_deg:.1f} p_vis={msg.p_visible:.2f}", show_labels=False))
             # the estimate's own box (w, h: the first box times the apparent scale), else the first box
+            # about the target's centre where it was measured apart from the MAP (box_dx, box_dy)
             size = (msg.w, msg.h) if msg.w > 0 and msg.h > 0 and _finite(msg.w, msg.h) else self._box_size
-            if size is not None and math.isfinite(msg.theta_deg):
+            if size is not None and _finite(msg.theta_deg, msg.box_dx, msg.box_dy):
                 self.rec.log("camera/estimate_box", rr.LineStrips2D(
-                    [self._rotated_box(msg.x, msg.y, *size, msg.theta_deg)], colors=colour,
+                    [self._rotated_box(msg.x + msg.box_dx, msg.y + msg.box_dy, *size, msg.theta_deg)], colors=colour,
                     radii=rr.Radius.ui_points(1.0), labels="re-acquired" if msg.reacquired else None))
         else:
             self.rec.log("camera/estimate", rr.Clear(recursive=False))

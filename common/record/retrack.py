@@ -20,7 +20,8 @@ from common.msgs.convert import estimate_msg, info_frame, info_homography
 from common.record.reader import Recording, RecordingError, read_recording
 
 COMPARED = ("frame_index", "time_s", "observed", "filter", "x", "y", "theta_deg", "p_visible", "world_x", "world_y",
-            "vx", "vy", "speed", "mmse_x", "mmse_y", "n_eff", "resampled", "w", "h", "reacquired")
+            "vx", "vy", "speed", "mmse_x", "mmse_y", "n_eff", "resampled", "w", "h", "reacquired",
+            "box_dx", "box_dy")
 """Estimate fields that must be identical on replay (not timings or latencies)."""
 
 

@@ -12,6 +12,7 @@ settings therefore give bit-identical estimates in-process, multi-process and on
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, replace
 from typing import Iterable, Iterator
@@ -148,7 +149,8 @@ class Tracker:
     homography), the camera's rotation of the particles' orientation, the matching scale, the
     re-acquisition's search while the target is lost and the moving-target cue on the observation;
     after it: the scale search, the lost state, the template adaptation and the template's
-    re-registration on the target's segment (each switched in the settings).
+    re-registration on the target's segment, or the box's centring on it (each switched in the
+    settings).
 
     A frame is anything with ``index``, ``time``, ``homography``, ``size`` and, when stabilising,
     ``image`` (:class:`common.sources.Frame`; :class:`common.msgs.convert.InfoFrame` on the bus).
@@ -182,6 +184,10 @@ class Tracker:
     _restart_time: float = -np.inf
     _cloud: tuple[float, float] | None = None
     """Where the filter's cloud is: its previous MAP carried into this frame's pixels (the search's prior)."""
+    _box_fit: tuple[float, float, float, float] | None = None
+    """The box from the target's segment (``segment.centre_box``), in the target's axes and in the
+    box's sides: its centre from the MAP (u, v) and its extent (a, b). Applied to the state returned
+    only, never to ``last_state``, which the tracking reads."""
 
     @classmethod
     def start(cls, first: Frame, init_box: tuple[float, float, float, float], settings: TrackerSettings,
@@ -327,6 +333,10 @@ class Tracker:
             self._register(frame, state)
         if self.stabiliser is not None:
             self._prev_image = frame.image
+        if self._box_fit is not None and not held_point and state.size is not None:
+            u, v, a, b = self._box_fit
+            w, hgt = state.size
+            state = replace(state, box_offset=_turned((u * w, v * hgt), state.map_estimate.theta), size=(a * w, b * hgt))
         return state
 
     def _own_scale_change(self, frame: Frame):
@@ -408,6 +418,7 @@ class Tracker:
             vel_std=initial_vel_std(self.settings, length_world), theta_std=3.75)
         self.filter.restart(initial)
         self._restart_time = time
+        self._box_fit = None
 
     def _reanchor(self, m: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
         """Move the particles to a new world frame: positions through ``m`` (old world -> new
@@ -437,7 +448,10 @@ class Tracker:
         template's (the particles' angles are relative to it), the scale set from the segment's
         length, the adaptation started again from the new template."""
         r = self.registrar
-        if r is None or frame.image is None or not r.due(frame.time, state.p_visible, state.score):
+        if r is None or frame.image is None:
+            return
+        if not r.due(frame.time, state.p_visible, state.score):
+            self._centre_box(frame, state)
             return
         if not self._settled(frame.time):
             return
@@ -461,6 +475,7 @@ class Tracker:
         except (ValueError, InitError, ObservationUnavailable):
             return  # its footprint is not whole in the frame, or the detector did not answer: kept as it is
         template = Template(pmatrix=rotate_pmatrix(built.pmatrix, -m.theta), centre=built.centre, box=built.box)
+        self._box_fit = None  # the new template is centred on the segment, and the scale set from it
         self.detector.use_template(template)
         if self.scale.mode == "search":
             self.scale.restart(s, swept=False)
@@ -469,6 +484,34 @@ class Tracker:
         ad = self.settings.adaptation
         if ad.enabled:
             self.adapter = TemplateAdapter(template, ad.rate, ad.anchor)
+
+    def _centre_box(self, frame: Frame, state: TrackState) -> None:
+        """Every ``segment.interval_s`` while held, where the template is not re-registered: the box
+        from the target's segment (``segment.centre_box``), its centre kept as an offset from the MAP
+        and its extent (a filled rectangle's sides from the segment's second moments), both in the
+        target's axes and in the track's box sides, so that they turn and grow with the track; kept
+        while the MAP lies inside the box so centred."""
+        r = self.registrar
+        if not r.centre_due(frame.time, state.p_visible) or state.size is None or not self._settled(frame.time):
+            return
+        m = state.map_estimate
+        t0 = time.perf_counter()
+        try:
+            seg = r.centre(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y),
+                           state.size, self.scale.target_length_px)
+        finally:
+            r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
+        if seg is None:
+            return  # nothing plausible segmented: the box stays as it was
+        w, hgt = state.size
+        u, v = _turned((seg.x - m.image_x, seg.y - m.image_y), -m.theta)
+        c, s = math.cos(math.radians(m.theta)), math.sin(math.radians(m.theta))
+        cxx, cxy, cyy = seg.cov  # the moments along the target's axes, turned back by theta
+        muu = c * c * cxx - 2 * c * s * cxy + s * s * cyy
+        mvv = s * s * cxx + 2 * c * s * cxy + c * c * cyy
+        a, b = math.sqrt(12 * max(muu, 0.0)) / w, math.sqrt(12 * max(mvv, 0.0)) / hgt
+        inside = abs(u) <= 0.5 * a * w and abs(v) <= 0.5 * b * hgt
+        self._box_fit = (u / w, v / hgt, a, b) if inside and a > 0 and b > 0 else None
 
     def _adapt(self, frame: Frame, state: TrackState) -> None:
         ad = self.settings.adaptation
@@ -502,6 +545,14 @@ class Tracker:
         self.detector.use_template(self.template)
         self._last_adapt_time = frame.time
         self.adaptations += 1
+
+
+def _turned(xy: tuple[float, float], theta_deg: float) -> tuple[float, float]:
+    """``xy`` (image pixels) turned by ``theta_deg`` anticlockwise as displayed (image y down), as
+    :func:`common.tracking.state.oriented_box_corners` turns a box's corners."""
+    a = math.radians(theta_deg)
+    c, s = math.cos(a), math.sin(a)
+    return (xy[0] * c + xy[1] * s, -xy[0] * s + xy[1] * c)
 
 
 def track_frames(frames: Iterable[Frame], init_box: tuple[float, float, float, float],

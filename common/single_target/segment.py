@@ -19,6 +19,12 @@ sees and of the box's rounding, fixed in the image rather than turning with the 
 growing with it, so carried in target lengths and turned by the track's angle it moves the
 registration off the target (docs/real-footage.md, stop 36). Nothing here needs the ground truth.
 
+A template that matches well is not moved (its segment can be bistable), yet it may hold a point
+of the target away from its centre (a car's textured end). For the reported box, not for the
+template, the target is segmented every interval whatever the score (``Registrar.centre``), and the
+box takes the segment's centre and extent (its second moments; ``SegmentRegistration.centre_box``,
+kept by :class:`common.single_target.runner.Tracker`).
+
 GrabCut initialises its colour models with k-means, which draws from OpenCV's random generator;
 it is seeded before every call from the run's seed and the frame's index, so the same frame gives
 the same segment in-process, multi-process and on replay.
@@ -48,6 +54,9 @@ class Segment:
     area_px: float
     solidity: float
     """Its area over its minimum-area rectangle's."""
+    cov: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Its pixels' second central moments (xx, xy, yy), image pixels squared: a filled w x h
+    rectangle along the axes has (w^2 / 12, 0, h^2 / 12)."""
 
 
 def segment_target(image: np.ndarray, centre: tuple[float, float], length_px: float, cfg, seed: int,
@@ -92,9 +101,12 @@ def segment_target(image: np.ndarray, centre: tuple[float, float], length_px: fl
     pts = np.argwhere(labels == i)[:, ::-1].astype(np.float32)
     _, (rw, rh), _ = cv2.minAreaRect(pts)
     area = float(stats[i, cv2.CC_STAT_AREA])
+    d = pts - pts.mean(axis=0)
+    cxx, cyy = float(np.mean(d[:, 0] ** 2)) + 1 / 12, float(np.mean(d[:, 1] ** 2)) + 1 / 12  # a pixel's own extent
+    cxy = float(np.mean(d[:, 0] * d[:, 1]))
     seg = Segment(x=x0 + (float(centres[i, 0]) + 0.5) / f - 0.5, y=y0 + (float(centres[i, 1]) + 0.5) / f - 0.5,
                   length_px=(max(rw, rh) + 1.0) / f, area_px=area / (f * f),
-                  solidity=area / ((rw + 1.0) * (rh + 1.0)))
+                  solidity=area / ((rw + 1.0) * (rh + 1.0)), cov=(cxx / f ** 2, cxy / f ** 2, cyy / f ** 2))
     if box_area_px is not None:
         lo, hi = cfg.area_range
         if not lo * box_area_px <= seg.area_px <= hi * box_area_px or seg.solidity < cfg.min_solidity:
@@ -104,7 +116,8 @@ def segment_target(image: np.ndarray, centre: tuple[float, float], length_px: fl
 
 class Registrar:
     """When to segment, and what a segment says: ``start`` on the first frame's box, then, on a
-    frame where ``due``, ``measure`` (None where nothing plausible is found)."""
+    frame where ``due``, ``measure`` (None where nothing plausible is found); for the box's centre,
+    where ``centre_due``, ``centre``."""
 
     def __init__(self, cfg, seed: int, max_score: float = 1.0):
         self.cfg = cfg
@@ -116,8 +129,11 @@ class Registrar:
         did not segment on the first frame, and is not re-registered)."""
         self._first_box_length_px = 1.0
         self._last_time = -math.inf
+        self._last_centre_time = -math.inf
         self.attempts = 0
         self.registrations = 0
+        self.centrings = 0
+        """Segmentations for the box's centre (``cfg.centre_box``), found or not."""
         self.seconds = 0.0
         """Wall time spent segmenting (a statistic for the benchmarks)."""
 
@@ -131,7 +147,7 @@ class Registrar:
         seg = segment_target(image, (x + w / 2, y + h / 2), max(w, h), self.cfg, self._seed(frame_index), w * h)
         self.first_length_px = None if seg is None else seg.length_px
         self._first_box_length_px = max(w, h)
-        self._last_time = time_s
+        self._last_time = self._last_centre_time = time_s
 
     @property
     def ratio(self) -> float | None:
@@ -158,6 +174,21 @@ class Registrar:
         self.registrations += 1
         return (seg.x, seg.y), seg.length_px / self.first_length_px
 
+    def centre_due(self, time_s: float, p_visible: float) -> bool:
+        """Whether to segment for the box's centre (``cfg.centre_box``): once an interval while held,
+        whatever the score."""
+        return (self.cfg.centre_box and self.first_length_px is not None and p_visible >= self.cfg.min_p_visible
+                and time_s - self._last_centre_time >= self.cfg.interval_s - 1e-9)
+
+    def centre(self, image: np.ndarray, frame_index: int, time_s: float, centre: tuple[float, float],
+               box_size: tuple[float, float], length_px: float) -> Segment | None:
+        """The target's segment about ``centre`` (as :meth:`measure`, for the box rather than the
+        template); None where no plausible segment is found."""
+        self._last_centre_time = time_s
+        self.centrings += 1
+        return segment_target(image, centre, length_px, self.cfg, self._seed(frame_index), box_size[0] * box_size[1])
+
     def stats(self) -> dict:
-        return {"segmentations": self.attempts, "registrations": self.registrations,
-                "ms_per_segmentation": round(1e3 * self.seconds / self.attempts, 2) if self.attempts else 0.0}
+        n = self.attempts + self.centrings
+        return {"segmentations": self.attempts, "registrations": self.registrations, "centrings": self.centrings,
+                "ms_per_segmentation": round(1e3 * self.seconds / n, 2) if n else 0.0}

@@ -160,16 +160,23 @@ class TrackState:
     """Windowed ML only: (centre x, centre y, side) of this frame's search window, pixels."""
     size: tuple[float, float] | None = None
     """(w, h) of the target's box in image pixels, before the rotation by ``orientation``: the first
-    box's sides times the apparent scale (set by :class:`common.single_target.runner.Tracker`; None from a bare filter)."""
+    box's sides times the apparent scale, or the target's segment's extent (``segment.centre_box``; set by
+    :class:`common.single_target.runner.Tracker`; None from a bare filter)."""
     reacquired: bool = False
     """Whether this frame's estimate comes from a re-acquisition (the filter re-locked on a detection)."""
+    box_offset: tuple[float, float] | None = None
+    """(dx, dy) image pixels from the MAP estimate to the box's centre, where the target's centre was
+    measured apart from the point the template holds (set by :class:`common.single_target.runner.Tracker`,
+    ``segment.centre_box``); None: the box is centred on the MAP."""
 
     def oriented_box(self) -> tuple[float, float, float, float, float] | None:
-        """(cx, cy, w, h, theta_deg) of the MAP estimate's oriented box; None without a size."""
+        """(cx, cy, w, h, theta_deg) of the target's oriented box: about the MAP estimate, moved by
+        ``box_offset``; None without a size."""
         if self.size is None:
             return None
         m = self.map_estimate
-        return (m.image_x, m.image_y, self.size[0], self.size[1], m.theta)
+        dx, dy = self.box_offset or (0.0, 0.0)
+        return (m.image_x + dx, m.image_y + dy, self.size[0], self.size[1], m.theta)
 
     def axis_aligned_box(self) -> tuple[float, float, float, float] | None:
         """(x, y, w, h) of the axis-aligned box with :meth:`oriented_box`'s extent (the benchmarks' box):

@@ -3,7 +3,9 @@
 Columns: frame (from 0, source order), x, y (image pixel centre of the estimate: the MAP for
 the particle filters), theta_deg (rotation relative to the first frame's template,
 anticlockwise as displayed), p_visible (posterior probability that the target is visible),
-w, h (the target's box in pixels before the rotation by theta_deg: with x, y an oriented box).
+w, h (the target's box in pixels before the rotation by theta_deg), box_x, box_y (the box's
+centre: x, y, unless the target's centre was measured apart from the point the filter holds,
+``segment.centre_box``): an oriented box.
 
 With a multi-target filter (``--filter epmcmc-elpda|epmcmc-pda|jpda-pf``) it tracks several
 articulated people from their first-frame boxes (``--init X,Y,W,H;X,Y,W,H``, ``--init`` repeated or
@@ -44,10 +46,11 @@ def run(args: argparse.Namespace) -> int:
         for frame, state in track_frames(source, init, settings):
             x, y = point_estimate(state)
             w, h = state.size if state.size is not None else (float("nan"), float("nan"))
+            dx, dy = state.box_offset or (0.0, 0.0)
             yield [[frame.index, f"{x:.3f}", f"{y:.3f}", f"{state.map_estimate.theta:.3f}", f"{state.p_visible:.6f}",
-                    f"{w:.3f}", f"{h:.3f}"]]
+                    f"{w:.3f}", f"{h:.3f}", f"{x + dx:.3f}", f"{y + dy:.3f}"]]
 
-    return _write_csv(args, ["frame", "x", "y", "theta_deg", "p_visible", "w", "h"], rows(), source)
+    return _write_csv(args, ["frame", "x", "y", "theta_deg", "p_visible", "w", "h", "box_x", "box_y"], rows(), source)
 
 
 def _write_csv(args: argparse.Namespace, header: list[str], rows, source) -> int:

@@ -175,7 +175,7 @@ class Template(_message.Message):
     def __init__(self, version: _Optional[int] = ..., rows: _Optional[int] = ..., columns: _Optional[int] = ..., pmatrix: _Optional[bytes] = ..., centre_x: _Optional[float] = ..., centre_y: _Optional[float] = ..., box: _Optional[_Iterable[float]] = ..., frame_index: _Optional[int] = ...) -> None: ...
 
 class Estimate(_message.Message):
-    __slots__ = ("frame_index", "time_s", "observed", "filter", "x", "y", "theta_deg", "p_visible", "world_x", "world_y", "vx", "vy", "speed", "mmse_x", "mmse_y", "n_eff", "resampled", "frames_skipped", "step_ms", "latency_ms", "w", "h", "reacquired")
+    __slots__ = ("frame_index", "time_s", "observed", "filter", "x", "y", "theta_deg", "p_visible", "world_x", "world_y", "vx", "vy", "speed", "mmse_x", "mmse_y", "n_eff", "resampled", "frames_skipped", "step_ms", "latency_ms", "w", "h", "reacquired", "box_dx", "box_dy")
     FRAME_INDEX_FIELD_NUMBER: _ClassVar[int]
     TIME_S_FIELD_NUMBER: _ClassVar[int]
     OBSERVED_FIELD_NUMBER: _ClassVar[int]
@@ -199,6 +199,8 @@ class Estimate(_message.Message):
     W_FIELD_NUMBER: _ClassVar[int]
     H_FIELD_NUMBER: _ClassVar[int]
     REACQUIRED_FIELD_NUMBER: _ClassVar[int]
+    BOX_DX_FIELD_NUMBER: _ClassVar[int]
+    BOX_DY_FIELD_NUMBER: _ClassVar[int]
     frame_index: int
     time_s: float
     observed: bool
@@ -222,7 +224,9 @@ class Estimate(_message.Message):
     w: float
     h: float
     reacquired: bool
-    def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., observed: _Optional[bool] = ..., filter: _Optional[str] = ..., x: _Optional[float] = ..., y: _Optional[float] = ..., theta_deg: _Optional[float] = ..., p_visible: _Optional[float] = ..., world_x: _Optional[float] = ..., world_y: _Optional[float] = ..., vx: _Optional[float] = ..., vy: _Optional[float] = ..., speed: _Optional[float] = ..., mmse_x: _Optional[float] = ..., mmse_y: _Optional[float] = ..., n_eff: _Optional[float] = ..., resampled: _Optional[bool] = ..., frames_skipped: _Optional[int] = ..., step_ms: _Optional[float] = ..., latency_ms: _Optional[float] = ..., w: _Optional[float] = ..., h: _Optional[float] = ..., reacquired: _Optional[bool] = ...) -> None: ...
+    box_dx: float
+    box_dy: float
+    def __init__(self, frame_index: _Optional[int] = ..., time_s: _Optional[float] = ..., observed: _Optional[bool] = ..., filter: _Optional[str] = ..., x: _Optional[float] = ..., y: _Optional[float] = ..., theta_deg: _Optional[float] = ..., p_visible: _Optional[float] = ..., world_x: _Optional[float] = ..., world_y: _Optional[float] = ..., vx: _Optional[float] = ..., vy: _Optional[float] = ..., speed: _Optional[float] = ..., mmse_x: _Optional[float] = ..., mmse_y: _Optional[float] = ..., n_eff: _Optional[float] = ..., resampled: _Optional[bool] = ..., frames_skipped: _Optional[int] = ..., step_ms: _Optional[float] = ..., latency_ms: _Optional[float] = ..., w: _Optional[float] = ..., h: _Optional[float] = ..., reacquired: _Optional[bool] = ..., box_dx: _Optional[float] = ..., box_dy: _Optional[float] = ...) -> None: ...
 
 class MultiEstimate(_message.Message):
     __slots__ = ("frame_index", "time_s", "filter", "targets", "parts", "part_names", "positions", "velocities", "n_eff", "moved", "units", "gate_area", "n_measurements", "acceptance", "parents", "observed", "step_ms", "latency_ms", "frames_skipped")
