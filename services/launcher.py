@@ -575,7 +575,7 @@ class Pipeline:
                     now = time.monotonic()
                     first_t = first_t or now
                     last_t = now
-                    live.estimate(e.frame_index, e.x, e.y)
+                    live.estimate(e.frame_index, e.x + e.box_dx, e.y + e.box_dy)  # the box's centre
                     bar.update(1)
                     if on_estimate is not None:
                         on_estimate(self, e)

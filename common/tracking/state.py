@@ -169,14 +169,20 @@ class TrackState:
     measured apart from the point the template holds (set by :class:`common.single_target.runner.Tracker`,
     ``segment.centre_box``); None: the box is centred on the MAP."""
 
-    def oriented_box(self) -> tuple[float, float, float, float, float] | None:
-        """(cx, cy, w, h, theta_deg) of the target's oriented box: about the MAP estimate, moved by
-        ``box_offset``; None without a size."""
-        if self.size is None:
-            return None
+    @property
+    def centre(self) -> tuple[float, float]:
+        """The target's centre in the image, as scored against a ground-truth box's centre: the MAP
+        estimate moved by ``box_offset`` (the MAP itself where none was measured)."""
         m = self.map_estimate
         dx, dy = self.box_offset or (0.0, 0.0)
-        return (m.image_x + dx, m.image_y + dy, self.size[0], self.size[1], m.theta)
+        return (m.image_x + dx, m.image_y + dy)
+
+    def oriented_box(self) -> tuple[float, float, float, float, float] | None:
+        """(cx, cy, w, h, theta_deg) of the target's oriented box, about :attr:`centre`; None without
+        a size."""
+        if self.size is None:
+            return None
+        return (*self.centre, self.size[0], self.size[1], self.map_estimate.theta)
 
     def axis_aligned_box(self) -> tuple[float, float, float, float] | None:
         """(x, y, w, h) of the axis-aligned box with :meth:`oriented_box`'s extent (the benchmarks' box):

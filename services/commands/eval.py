@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.commands.common_args import add_tracking_arguments, open_checked, point_estimate, settings_for, truth_centre
+from services.commands.common_args import add_tracking_arguments, open_checked, settings_for, truth_centre
 
 HELP = "track and score against ground truth (precision, AUC, error plots)"
 FILTERS = ("rbpf", "sir", "ml")
@@ -47,7 +47,7 @@ def evaluate(source, init, settings_by_name: dict, progress: bool = False) -> di
                 trackers[name] = Tracker.start(frame, init, st)
             state = trackers[name].step(frame)
             elapsed[name] += time.perf_counter() - t0
-            est[name].append(point_estimate(state))
+            est[name].append(state.centre)  # the box's centre: the MAP's unless measured apart
             pvis[name].append(state.p_visible)
         truth.append(truth_centre(source, frame))
         t = frame.truth
