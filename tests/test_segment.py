@@ -161,6 +161,36 @@ def test_no_calibration_no_registration():
     assert r.ratio is None and not r.due(10.0, 1.0, 0.5)
 
 
+SCENE3_LENGTH = 49.92
+"""The synthetic car's length on scene 3's first frame (its true box's long side, px)."""
+
+
+def run_drifted(segment: SegmentRegistration, along: tuple[float, float]):
+    """The synthetic car (scene 3, 45 frames) tracked with the real profile from its true box, its
+    template replaced on the third frame by one taken ``along`` = (dx, dy) car lengths off the car's
+    centre, as the adaptation's drift leaves it: the tracker, the frames and each frame's state."""
+    src = open_source("synthetic:3", n_frames=45)
+    frames = list(src)
+    box = frames[0].truth.box
+    assert max(box[2:]) == pytest.approx(SCENE3_LENGTH, abs=0.01)
+    st = profile_for(src, seed=0, preset="real").model_copy(update={"stabilise": "on", "segment": segment})
+    t = Tracker.start(frames[0], box, st)
+    states = []
+    for f in frames:
+        states.append(t.step(f))
+        if f.index == 2:  # the drifted template
+            x, y, w, h = f.truth.box
+            ox, oy = along[0] * SCENE3_LENGTH, along[1] * SCENE3_LENGTH
+            t.template = t.detector.build_template(f, (x + w / 2 + ox, y + h / 2 + oy), (x + ox, y + oy, w, h), t.factor)
+            t.adapter = type(t.adapter)(t.template, t.adapter.rate, t.adapter.anchor)
+    return t, frames, states
+
+
+def off_truth(frames, points) -> np.ndarray:
+    """Each point's distance from its frame's true centre (px)."""
+    return np.array([math.hypot(x - f.truth.centre[0], y - f.truth.centre[1]) for f, (x, y) in zip(frames, points)])
+
+
 def test_the_tracker_re_registers_a_template_drifted_off_the_target():
     """The synthetic car tracked from its true box; on the third frame its template is replaced by
     one taken a third of a length to the car's right (as the adaptation's drift leaves it). Without
@@ -170,28 +200,15 @@ def test_the_tracker_re_registers_a_template_drifted_off_the_target():
     registration at 0.80-0.93 here, above the product's trigger (0.68), which this scene had met
     only by one frame's dip to 0.665 before stop 40's motion-cue fix; the test is of what a
     registration does, not of when it is due."""
-    src = open_source("synthetic:3", n_frames=45)
-    frames = list(src)
-    box = frames[0].truth.box
-    shift = max(box[2:]) / 3
 
     def errors(enabled):
-        st = profile_for(src, seed=0, preset="real").model_copy(update={
-            "stabilise": "on", "segment": SegmentRegistration(enabled=enabled, interval_s=0.5, score_quantile=1.0)})
-        t = Tracker.start(frames[0], box, st)
-        out = []
-        for f in frames:
-            m = t.step(f).map_estimate
-            if f.index == 2:  # the drifted template
-                x, y, w, h = f.truth.box
-                t.template = t.detector.build_template(f, (x + w / 2 + shift, y + h / 2), (x + shift, y, w, h),
-                                                       t.factor)
-                t.adapter = type(t.adapter)(t.template, t.adapter.rate, t.adapter.anchor)
-            out.append(math.hypot(m.image_x - f.truth.centre[0], m.image_y - f.truth.centre[1]))
-        return t, np.asarray(out)
+        t, frames, states = run_drifted(SegmentRegistration(enabled=enabled, interval_s=0.5, score_quantile=1.0),
+                                        (1 / 3, 0.0))
+        return t, off_truth(frames, [(st.map_estimate.image_x, st.map_estimate.image_y) for st in states])
 
     t_on, on = errors(True)
     t_off, off = errors(False)
+    shift = SCENE3_LENGTH / 3
     assert t_on.registrar.registrations >= 1 and t_off.registrar is None
     assert np.median(off[-10:]) > 0.6 * shift  # negative control: the offset stays
     assert np.median(on[-10:]) < 0.1 * shift  # measured 16.2 px -> 0.5 px
@@ -205,33 +222,16 @@ def test_the_box_is_centred_on_the_segment_while_the_template_holds_a_point_off_
     centre, turned with the car as it turns (the offset kept in the target's axes); without it
     (negative control) the box is centred on the MAP. Nothing tracked changes: the MAP estimates
     are the same either way."""
-    src = open_source("synthetic:3", n_frames=45)
-    frames = list(src)
-    box = frames[0].truth.box
-    shift = max(box[2:]) / 3
 
     def run(centre_box):
-        st = profile_for(src, seed=0, preset="real").model_copy(update={
-            "stabilise": "on", "segment": SegmentRegistration(enabled=True, interval_s=0.5, centre_box=centre_box,
-                                                              score_quantile=0.01)})
-        t = Tracker.start(frames[0], box, st)
-        maps, boxes = [], []
-        for f in frames:
-            s = t.step(f)
-            if f.index == 2:  # the drifted template
-                x, y, w, h = f.truth.box
-                assert h > 1.5 * w  # the car's length along y
-                t.template = t.detector.build_template(f, (x + w / 2, y + h / 2 + shift), (x, y + shift, w, h),
-                                                       t.factor)
-                t.adapter = type(t.adapter)(t.template, t.adapter.rate, t.adapter.anchor)
-            cx, cy = f.truth.centre
-            maps.append(math.hypot(s.map_estimate.image_x - cx, s.map_estimate.image_y - cy))
-            bx, by = s.oriented_box()[:2]
-            boxes.append(math.hypot(bx - cx, by - cy))
-        return t, np.asarray(maps), np.asarray(boxes)
+        t, frames, states = run_drifted(SegmentRegistration(enabled=True, interval_s=0.5, centre_box=centre_box,
+                                                            score_quantile=0.01), (0.0, 1 / 3))
+        maps = off_truth(frames, [(st.map_estimate.image_x, st.map_estimate.image_y) for st in states])
+        return t, frames, maps, off_truth(frames, [st.centre for st in states])
 
-    t_on, map_on, box_on = run(True)
-    t_off, map_off, box_off = run(False)
+    t_on, frames, map_on, box_on = run(True)
+    t_off, _, map_off, box_off = run(False)
+    shift = SCENE3_LENGTH / 3
     assert t_on.registrar.registrations == 0 and t_on.registrar.centrings >= 2
     turn = abs((frames[-1].truth.angle_deg - frames[3].truth.angle_deg + 180) % 360 - 180)
     assert turn > 20  # the car turns while the offset is held

@@ -456,12 +456,8 @@ class Tracker:
         if not self._settled(frame.time):
             return
         m = state.map_estimate
-        t0 = time.perf_counter()
-        try:
-            found = r.measure(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y),
-                              state.size, self.scale.target_length_px)
-        finally:
-            r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
+        found = r.measure(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y),
+                          state.size, self.scale.target_length_px)
         if found is None:
             return
         (x, y), s = found
@@ -495,12 +491,8 @@ class Tracker:
         if not r.centre_due(frame.time, state.p_visible) or state.size is None or not self._settled(frame.time):
             return
         m = state.map_estimate
-        t0 = time.perf_counter()
-        try:
-            seg = r.centre(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y),
-                           state.size, self.scale.target_length_px)
-        finally:
-            r.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
+        seg = r.centre(np.asarray(frame.image), frame.index, frame.time, (m.image_x, m.image_y),
+                       state.size, self.scale.target_length_px)
         if seg is None:
             return  # nothing plausible segmented: the box stays as it was
         w, hgt = state.size

@@ -33,6 +33,7 @@ the same segment in-process, multi-process and on replay.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import cv2
@@ -167,8 +168,7 @@ class Registrar:
         either way."""
         self._last_time = time_s
         self.attempts += 1
-        seg = segment_target(image, centre, length_px, self.cfg, self._seed(frame_index),
-                             box_size[0] * box_size[1])
+        seg = self._segment(image, frame_index, centre, box_size, length_px)
         if seg is None:
             return None
         self.registrations += 1
@@ -186,7 +186,16 @@ class Registrar:
         template); None where no plausible segment is found."""
         self._last_centre_time = time_s
         self.centrings += 1
-        return segment_target(image, centre, length_px, self.cfg, self._seed(frame_index), box_size[0] * box_size[1])
+        return self._segment(image, frame_index, centre, box_size, length_px)
+
+    def _segment(self, image: np.ndarray, frame_index: int, centre: tuple[float, float],
+                 box_size: tuple[float, float], length_px: float) -> Segment | None:
+        t0 = time.perf_counter()
+        try:
+            return segment_target(image, centre, length_px, self.cfg, self._seed(frame_index),
+                                  box_size[0] * box_size[1])
+        finally:
+            self.seconds += time.perf_counter() - t0  # a statistic only: never read by the tracking
 
     def stats(self) -> dict:
         n = self.attempts + self.centrings
