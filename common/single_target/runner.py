@@ -33,6 +33,7 @@ from common.sources import Frame
 from common.single_target.stabilise import CameraMotionEstimator, grey
 from common.single_target.target_flow import measure_scale_change
 from common.tracking import RBPF, SIR, BetaRatioLikelihood, InitialState, TrackState, WindowedML, wrap_degrees
+from common.tracking.state import box_axes
 from common.tracking.camera import apply_homography, homography_jacobian, image_to_world, invert_homography
 from common.tracking.motion import NearConstantVelocity
 from common.tracking.state import Estimate, InitError
@@ -336,7 +337,8 @@ class Tracker:
         if self._box_fit is not None and not held_point and state.size is not None:
             u, v, a, b = self._box_fit
             w, hgt = state.size
-            state = replace(state, box_offset=_turned((u * w, v * hgt), state.map_estimate.theta), size=(a * w, b * hgt))
+            dx, dy = box_axes(state.map_estimate.theta) @ (u * w, v * hgt)
+            state = replace(state, box_offset=(float(dx), float(dy)), size=(a * w, b * hgt))
         return state
 
     def _own_scale_change(self, frame: Frame):
@@ -496,14 +498,13 @@ class Tracker:
         if seg is None:
             return  # nothing plausible segmented: the box stays as it was
         w, hgt = state.size
-        u, v = _turned((seg.x - m.image_x, seg.y - m.image_y), -m.theta)
-        c, s = math.cos(math.radians(m.theta)), math.sin(math.radians(m.theta))
-        cxx, cxy, cyy = seg.cov  # the moments along the target's axes, turned back by theta
-        muu = c * c * cxx - 2 * c * s * cxy + s * s * cyy
-        mvv = s * s * cxx + 2 * c * s * cxy + c * c * cyy
+        axes = box_axes(m.theta)  # the target's axes: the track's box's, turned by the MAP's angle
+        u, v = axes.T @ (seg.x - m.image_x, seg.y - m.image_y)
+        cxx, cxy, cyy = seg.cov
+        muu, mvv = np.diag(axes.T @ np.array([[cxx, cxy], [cxy, cyy]]) @ axes)  # the moments along them
         a, b = math.sqrt(12 * max(muu, 0.0)) / w, math.sqrt(12 * max(mvv, 0.0)) / hgt
         inside = abs(u) <= 0.5 * a * w and abs(v) <= 0.5 * b * hgt
-        self._box_fit = (u / w, v / hgt, a, b) if inside and a > 0 and b > 0 else None
+        self._box_fit = (float(u) / w, float(v) / hgt, a, b) if inside and a > 0 and b > 0 else None
 
     def _adapt(self, frame: Frame, state: TrackState) -> None:
         ad = self.settings.adaptation
@@ -537,14 +538,6 @@ class Tracker:
         self.detector.use_template(self.template)
         self._last_adapt_time = frame.time
         self.adaptations += 1
-
-
-def _turned(xy: tuple[float, float], theta_deg: float) -> tuple[float, float]:
-    """``xy`` (image pixels) turned by ``theta_deg`` anticlockwise as displayed (image y down), as
-    :func:`common.tracking.state.oriented_box_corners` turns a box's corners."""
-    a = math.radians(theta_deg)
-    c, s = math.cos(a), math.sin(a)
-    return (xy[0] * c + xy[1] * s, -xy[0] * s + xy[1] * c)
 
 
 def track_frames(frames: Iterable[Frame], init_box: tuple[float, float, float, float],

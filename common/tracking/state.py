@@ -238,13 +238,21 @@ def oriented_to_moment_box(cx: float, cy: float, w: float, h: float, theta_deg: 
     return (cx - bw / 2.0, cy - bh / 2.0, bw, bh)
 
 
+def box_axes(theta_deg: float) -> np.ndarray:
+    """The 2 x 2 map from a box's own axes to the image's for a box turned by ``theta_deg``
+    anticlockwise as displayed (image y down), as :func:`oriented_box_corners` turns its corners:
+    an offset (u, v) along the box's sides is ``box_axes(theta) @ (u, v)`` in image pixels, and
+    ``box_axes(theta).T`` maps back."""
+    a = math.radians(theta_deg)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, s], [-s, c]])
+
+
 def oriented_box_corners(cx: float, cy: float, w: float, h: float, theta_deg: float) -> list[tuple[float, float]]:
     """The four corners of a w x h box centred on (cx, cy) and turned by ``theta_deg``
     anticlockwise as displayed (image y down), in outline order."""
-    a = math.radians(theta_deg)
-    c, s = math.cos(a), math.sin(a)
-    return [(cx + dx * c + dy * s, cy - dx * s + dy * c)
-            for dx, dy in ((-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2))]
+    offsets = np.array([[-w / 2, -h / 2], [w / 2, -h / 2], [w / 2, h / 2], [-w / 2, h / 2]])
+    return [(cx + float(x), cy + float(y)) for x, y in offsets @ box_axes(theta_deg).T]
 
 
 def summarise_particles(
