@@ -102,12 +102,11 @@ def segment_target(image: np.ndarray, centre: tuple[float, float], length_px: fl
     pts = np.argwhere(labels == i)[:, ::-1].astype(np.float32)
     _, (rw, rh), _ = cv2.minAreaRect(pts)
     area = float(stats[i, cv2.CC_STAT_AREA])
-    d = pts - pts.mean(axis=0)
-    cxx, cyy = float(np.mean(d[:, 0] ** 2)) + 1 / 12, float(np.mean(d[:, 1] ** 2)) + 1 / 12  # a pixel's own extent
-    cxy = float(np.mean(d[:, 0] * d[:, 1]))
+    cov = (np.cov(pts, rowvar=False, bias=True) + np.eye(2) / 12) / (f * f)  # with each pixel's own extent
     seg = Segment(x=x0 + (float(centres[i, 0]) + 0.5) / f - 0.5, y=y0 + (float(centres[i, 1]) + 0.5) / f - 0.5,
                   length_px=(max(rw, rh) + 1.0) / f, area_px=area / (f * f),
-                  solidity=area / ((rw + 1.0) * (rh + 1.0)), cov=(cxx / f ** 2, cxy / f ** 2, cyy / f ** 2))
+                  solidity=area / ((rw + 1.0) * (rh + 1.0)),
+                  cov=(float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])))
     if box_area_px is not None:
         lo, hi = cfg.area_range
         if not lo * box_area_px <= seg.area_px <= hi * box_area_px or seg.solidity < cfg.min_solidity:
