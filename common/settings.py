@@ -265,6 +265,22 @@ class ReacquisitionSettings(BaseModel):
     """Confirm a pending mover when the next frame's strongest mover lies within the target length it
     was matched at (at least a box length): in boxes smaller than the target the strongest one may lie
     on any of its parts from frame to frame."""
+    movers_in_doubt: bool = False
+    """While the hold is in doubt (p(V=1|Z) under ``lost_p_visible`` for less than ``lost_after_s``),
+    test the strongest mover within a target length of the filter's cloud every frame, as
+    ``mover_near_estimate`` does once lost, at ``doubt_false_alarms_per_s`` (the frame's other movers
+    and the tiles wait for the lost state): a target that turned or swerved out of its template's
+    match still moves under the cloud."""
+    doubt_false_alarms_per_s: float = Field(0.005, gt=0)
+    """The movers' false alarms a second allowed while the hold is in doubt (``false_alarms_per_s`` once
+    lost): a tenth, since a restart in doubt replaces a cloud that may still be on the target (one
+    hidden for a moment, a car under trees beside another) where once lost there is none to lose."""
+    doubt_mover_off_lengths: float = Field(0.5, ge=0)
+    """In doubt, a mover is pending only where it lies at least this many target lengths (at the held
+    scale) from the cloud's point: nearer, it lies on the target as the cloud holds it (half a length
+    either side of its centre), and a restart could only move a cloud that may be right to the
+    matcher's peak at the moving blob's scale, off the target (a car under trees, 4 px off before
+    such a restart and 18 px after)."""
 
 
 class MotionCueSettings(BaseModel):
@@ -450,7 +466,7 @@ PRESETS: dict[ProfileName, dict] = {
         "motion_noise_lengths": REAL_MOTION_NOISE_LENGTHS,
         "init_vel_lengths": REAL_INIT_VEL_LENGTHS,
         "jump_std_lengths": REAL_JUMP_STD_LENGTHS,
-        "reacquisition": {"enabled": True},
+        "reacquisition": {"enabled": True, "movers_in_doubt": True},
         "motion_cue": {"enabled": True},
         "segment": {"enabled": True},
     },

@@ -47,6 +47,11 @@ def _frames(text: str | None) -> range:
     return range(int(a), int(b) + 1 if b else int(a) + 1)
 
 
+def _searched(r) -> int:
+    """Frames the re-acquisition searched so far, lost or in doubt (0 without it)."""
+    return 0 if r is None else r.searches + r.doubt_searches
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sequence")
@@ -81,7 +86,8 @@ def main() -> None:
                                  "such as exit:0)")
             tracker = runner.Tracker.start(frame, box, settings)
         measured.clear()
-        searches = tracker.reacquirer.searches if tracker.reacquirer is not None else 0
+        searches = _searched(tracker.reacquirer)
+        doubt = tracker.reacquirer.doubt_searches if tracker.reacquirer is not None else 0
         reg = tracker.registrar
         attempts, registrations = (reg.attempts, reg.registrations) if reg is not None else (0, 0)
         state = tracker.step(frame)
@@ -110,9 +116,10 @@ def main() -> None:
                 segment = " segment: " + ("registered" if reg.registrations > registrations else "none plausible")
             print(f"f{i} {figures} s {tracker.scale.s:.3f} k {tracker.factor:.2f} score {score} {flow}{segment}")
             r = tracker.reacquirer
-            if a.movers and r is not None and r.searches > searches:
+            if a.movers and r is not None and _searched(r) > searches:
                 g = r.mover_gate
-                print("    searched: " + (("no mover" if tracker.motion_cue is not None else "movers not searched")
+                head = "    searched in doubt: " if r.doubt_searches > doubt else "    searched: "
+                print(head + (("no mover" if tracker.motion_cue is not None else "movers not searched")
                                           if g is None else
                       f"mover {g.x:.0f},{g.y:.0f} z {g.z:.2f} at s {g.scale:.2f}: background boxes as strong "
                       f"{g.false_alarms:.3g}, allowed {g.allowed:.3g} ({'passes' if g.false_alarms <= g.allowed else 'fails'})"))

@@ -62,6 +62,16 @@ confident detection to restart the filter on.
   On real footage the template often no longer matches a target that comes back (another view,
   another size: uav123-car16's car scores 0.5 where the road scores 0.75, docs/real-footage.md),
   but a car that drives still moves over the ground.
+- **In doubt** (``movers_in_doubt``): while p(V=1|Z) is under ``lost_p_visible`` but the track is
+  not yet lost, the strongest mover within a target length of the cloud is tested on every frame
+  as above, in boxes of the held scale, and a confirmed one restarts the filter at once: a car that
+  turned while its cloud carried on is in plain view (uav123-car16's slalom lost the car for the
+  half second before the lost state). Nothing else is searched then, and the test allows
+  ``doubt_false_alarms_per_s``, a tenth of the lost state's: a cloud in doubt may still be on a
+  target hidden for a moment, beside another car that moves (uavdt-S1001 under the trees). A mover
+  within ``doubt_mover_off_lengths`` of the cloud lies on the target as the cloud holds it and is
+  not pending: a restart there would only trade the cloud for the matcher's peak at the blob's
+  scale.
 - **Detection**: the best candidate of a tile is refined on a finer grid around it; it passes
   when its score reaches the threshold at which the background's score distribution gives
   ``false_alarms_per_s`` false detections a second over all the hypotheses searched (Bonferroni
@@ -248,6 +258,12 @@ class Reacquirer:
         self.mover_gate: MoverGate | None = None
         """The movers' test on the latest searched frame (None: not searched by the movers, or no mover)."""
         self.searches = 0
+        self._observed_time: float | None = None
+        """The time of the frame :meth:`observe` saw last (the frame before the one being searched)."""
+        self.doubt_searches = 0
+        """Frames searched while the hold was in doubt (``movers_in_doubt``)."""
+        self.doubt_detections = 0
+        """Restarts on a mover found while the hold was in doubt."""
         self.mover_detections = 0
         self.tiles = 0
         self.detections = 0
@@ -257,8 +273,10 @@ class Reacquirer:
     def stats(self) -> dict:
         """Searched frames, tiles, restarts and the search's milliseconds per searched frame."""
         return {"searched_frames": self.searches, "tiles": self.tiles, "restarts": self.detections,
-                "restarts_on_movers": self.mover_detections,
-                "ms_per_searched_frame": round(1e3 * self.seconds / self.searches, 2) if self.searches else 0.0}
+                "restarts_on_movers": self.mover_detections, "frames_searched_in_doubt": self.doubt_searches,
+                "restarts_in_doubt": self.doubt_detections,
+                "ms_per_searched_frame": round(1e3 * self.seconds / n, 2) if (n := self.searches + self.doubt_searches)
+                else 0.0}
 
     # -- the lost state -------------------------------------------------------------------------
     def carry(self, m: np.ndarray | None) -> None:
@@ -297,7 +315,9 @@ class Reacquirer:
         cfg = self.cfg
         m = state.map_estimate
         self.held = self.holds(state)
+        self._observed_time = float(time)
         if self.held:
+            self._pending_mover = None  # a mover pending from a frame of doubt: the filter holds again
             if self._held_since is None:
                 self._held_since = float(time)
             self._below_since = None
@@ -321,6 +341,27 @@ class Reacquirer:
             if not self._searching:
                 self._tile, self._sweep, self._searching = 0, 0, True
                 self._mover_sweep = 0
+
+    @property
+    def in_doubt(self) -> bool:
+        """The target was held, the latest posterior does not hold it, and it is not yet lost."""
+        return not self.held and not self.lost and self.last_held is not None
+
+    def search_in_doubt(self, time: float, grid_at, scale_tracker, movers, cloud) -> Detection | None:
+        """While the hold is in doubt: the movers near the cloud only (``mover_near_estimate``'s test,
+        in boxes of the held scale, at ``doubt_false_alarms_per_s``), confirmed on the next frame as
+        when lost; a confirmed detection, or None."""
+        prev = self._observed_time
+        dt = self.cfg.assumed_interval_s if prev is None else max(time - prev, 1e-3)  # one frame's allowance
+        self.mover_gate = None
+        if cloud is None or movers is None:
+            return None
+        self.doubt_searches += 1
+        det = self._search_movers(dt, grid_at, scale_tracker, movers, cloud, near_only=True)
+        if det is None:
+            return None
+        self.doubt_detections += 1
+        return self._at_best_scale(det, grid_at, scale_tracker)
 
     def relocked(self, det: Detection) -> None:
         """The tracker restarted the filter on ``det``."""
@@ -451,16 +492,20 @@ class Reacquirer:
         self._pending = best
         return None
 
-    def _search_movers(self, dt: float, grid_at, scale_tracker, movers, cloud=None) -> Detection | None:
+    def _search_movers(self, dt: float, grid_at, scale_tracker, movers, cloud=None,
+                       near_only: bool = False) -> Detection | None:
         """The strongest mover of the frame, when the background's tail cannot explain it and it was
         the strongest on the frame before too, within the length of the target as matched then (at
         least a box length; see the module docstring). With ``mover_confirm_locally`` the confirming
         frame tests the pending mover's own hypothesis: the strongest box within that reach, against
         the boxes there, not the frame's."""
         cfg = self.cfg
+        rate = cfg.doubt_false_alarms_per_s if near_only else cfg.false_alarms_per_s
         pending, self._pending_mover = self._pending_mover, None
         if pending is not None:
             s = self._pending_box_scale  # the same test again: boxes of the size that found it
+        elif near_only:
+            s = float(scale_tracker.s)  # in doubt: the target is where and as large as it was held
         else:
             s, n = self._scale_of_sweep(self._mover_sweep, *scale_tracker.scale_range())
             self._mover_sweep = n + 1  # one scale a frame: the movers cover the frame at once
@@ -475,7 +520,7 @@ class Reacquirer:
             within = np.flatnonzero(np.hypot(xy[:, 0] - pending.x, xy[:, 1] - pending.y) <= reach)
             if len(within):
                 top = int(within[np.argmax(z[within])])
-                gate = self._gate(scale_tracker, movers, xy, z, top, s, len(within), dt)
+                gate = self._gate(scale_tracker, movers, xy, z, top, s, len(within), dt, rate)
                 if gate.false_alarms <= gate.allowed:
                     return self._confirm(grid_at, scale_tracker, pending, gate.x, gate.y)
         gate = None
@@ -484,12 +529,17 @@ class Reacquirer:
                                     <= max(length, scale_tracker.target_length_px))
             if len(around):
                 top = int(around[np.argmax(z[around])])
-                gate = self._gate(scale_tracker, movers, xy, z, top, s, len(around), dt)
+                gate = self._gate(scale_tracker, movers, xy, z, top, s, len(around), dt, rate)
                 if gate.false_alarms > gate.allowed:
                     gate = None
+        if gate is None and near_only:
+            return None  # in doubt the frame's other movers are not tested
+        if near_only and pending is None and (math.hypot(gate.x - cloud[0], gate.y - cloud[1])
+                                              < cfg.doubt_mover_off_lengths * scale_tracker.target_length_px):
+            return None  # the mover lies on the target as the cloud holds it: nothing to correct
         if gate is None:
             top = int(np.argmax(z))
-            gate = self._gate(scale_tracker, movers, xy, z, top, s, len(z), dt)
+            gate = self._gate(scale_tracker, movers, xy, z, top, s, len(z), dt, rate)
             if gate.false_alarms > gate.allowed:
                 return None
         x, y = gate.x, gate.y
@@ -516,10 +566,11 @@ class Reacquirer:
         return None
 
     def _gate(self, scale_tracker, movers, xy: np.ndarray, z: np.ndarray, top: int, s: float, hypotheses: int,
-              dt: float) -> MoverGate:
+              dt: float, rate: float) -> MoverGate:
         """The movers' test of box ``top`` among ``hypotheses`` boxes searched: the background's tail,
         fitted to the frame's boxes beyond a box length of it and off its moving blob, gives the
-        expected number of background boxes as strong among them (kept as :attr:`mover_gate`)."""
+        expected number of background boxes as strong among them, allowed ``rate`` a second over the
+        frame interval ``dt`` (kept as :attr:`mover_gate`)."""
         cfg = self.cfg
         length = scale_tracker.length_px * s
         own = movers.blob_box((float(xy[top, 0]), float(xy[top, 1]))) if cfg.mover_tail_without_blob else None
@@ -527,8 +578,7 @@ class Reacquirer:
             own = None  # larger than any target the frame could show: merged with its surroundings
         n_p = expected_false_alarms(xy, z, top, length, hypotheses, cfg.mover_tail_quantile, own,
                                     (movers.box_size[0] * s / 2, movers.box_size[1] * s / 2))
-        gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s), n_p,
-                         cfg.false_alarms_per_s * dt)
+        gate = MoverGate(float(xy[top, 0]), float(xy[top, 1]), float(z[top]), float(s), n_p, rate * dt)
         self.mover_gate = gate
         return gate
 

@@ -274,7 +274,7 @@ class Tracker:
         if self.frames > 0 and self.reacquirer is not None:
             m = _interframe(self.homography, h)
             self.reacquirer.carry(m)
-            if self.reacquirer.lost and self.last_state is not None:  # only a lost track searches
+            if self._searches(self.reacquirer) and self.last_state is not None:  # a held track never searches
                 e = self.last_state.map_estimate
                 self._cloud = self.reacquirer.carried(m, (e.image_x, e.image_y))
         if self.frames > 0:
@@ -391,16 +391,26 @@ class Tracker:
         self.motion_cue.prepare(centre, self.scale.s)
         return CuedObservation(obs, self.motion_cue.log_ratio)
 
+    def _searches(self, r: Reacquirer) -> bool:
+        """Whether this frame is searched: the target is lost, or (``movers_in_doubt``, with the
+        moving-target cue) its hold is in doubt."""
+        return r.lost or (self.settings.reacquisition.movers_in_doubt and self.motion_cue is not None
+                          and r.in_doubt)
+
     def _search(self, frame: Frame, h: np.ndarray | None) -> Detection | None:
-        """While the target is lost, search this frame (:mod:`common.single_target.reacquire`); on a confident
-        detection restart the filter there, at the detection's scale and angle."""
+        """While the target is lost, search this frame (:mod:`common.single_target.reacquire`), and while
+        its hold is in doubt the movers near the cloud (``movers_in_doubt``); on a confident detection
+        restart the filter there, at the detection's scale and angle."""
         r = self.reacquirer
-        if r is None or not r.lost:
+        if r is None or not self._searches(r):
             return None
         t0 = time.perf_counter()
         try:
-            det = r.search(frame.time, lambda k, xy, crop=None: self.detector.scale_grid(frame, k, xy, crop),
-                           self.scale, self.motion_cue, self._cloud)
+            grid_at = lambda k, xy, crop=None: self.detector.scale_grid(frame, k, xy, crop)  # noqa: E731
+            if r.lost:
+                det = r.search(frame.time, grid_at, self.scale, self.motion_cue, self._cloud)
+            else:
+                det = r.search_in_doubt(frame.time, grid_at, self.scale, self.motion_cue, self._cloud)
         except ObservationUnavailable:
             return None  # a remote detector did not answer: search again next frame
         finally:
