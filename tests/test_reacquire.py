@@ -916,8 +916,9 @@ def test_in_doubt_the_movers_under_the_cloud_restart_the_filter_and_no_other():
     frame interval. Negative controls: the frame's strongest mover (z 30, 150 px away) is not tested
     while in doubt (once lost it is the pending mover); a mover the doubt's rate does not admit is
     not pending, and is once lost, at ``false_alarms_per_s``; a mover within half a length of the
-    cloud (on the target as the cloud holds it) is not pending; a mover pending from a frame of doubt
-    is dropped when the filter holds the target again."""
+    cloud (on the target as the cloud holds it) is not pending, nor is one the next frame finds there
+    after a pending mover it did not confirm; a mover pending from a frame of doubt is dropped when
+    the filter holds the target again."""
     def faint(x0, y0):  # the matcher's peak, too faint for the tiles
         peaked = _grid_peaked_at(x0, y0)
         return lambda k, xy, crop=None: (0.3 * peaked(k, xy)[0], np.ones(len(xy), bool))
@@ -975,6 +976,19 @@ def test_in_doubt_the_movers_under_the_cloud_restart_the_filter_and_no_other():
     assert r.lost
     assert r.search(0.7, faint(302.0, 201.0), _Scale, _MoverOfZ((300.0, 200.0), 6.0), (302.0, 201.0)) is None
     assert r._pending_mover is not None and r.mover_gate.allowed == pytest.approx(0.05 * 0.1)
+
+    # a mover pending from a frame of doubt, not seen again within its reach on the next: a new mover
+    # there is held to the same rule, pending only half a length or more off the cloud
+    for cloud, pends in (((329.0, 201.0), False), ((339.0, 201.0), True)):
+        r = in_doubt()
+        assert r.search_in_doubt(0.2, faint(302.0, 201.0), _Scale, cue, off) is None
+        assert r._pending_mover is not None
+        r.observe(0.2, _state(0.2, 0.1, *cloud), 1.0)
+        assert r.search_in_doubt(0.3, faint(327.0, 201.0), _Scale, _MoverOfZ((325.0, 200.0), 6.0), cloud) is None
+        assert r.mover_gate.false_alarms <= r.mover_gate.allowed and (r.mover_gate.x, r.mover_gate.y) == (325.0, 200.0)
+        assert (r._pending_mover is not None) == pends, cloud
+        if pends:
+            assert (r._pending_mover.x, r._pending_mover.y) == pytest.approx((327.0, 201.0), abs=0.5)
 
     # held again: the mover pending from the frame of doubt is dropped
     r = in_doubt()

@@ -534,9 +534,6 @@ class Reacquirer:
                     gate = None
         if gate is None and near_only:
             return None  # in doubt the frame's other movers are not tested
-        if near_only and pending is None and (math.hypot(gate.x - cloud[0], gate.y - cloud[1])
-                                              < cfg.doubt_mover_off_lengths * scale_tracker.target_length_px):
-            return None  # the mover lies on the target as the cloud holds it: nothing to correct
         if gate is None:
             top = int(np.argmax(z))
             gate = self._gate(scale_tracker, movers, xy, z, top, s, len(z), dt, rate)
@@ -545,6 +542,9 @@ class Reacquirer:
         x, y = gate.x, gate.y
         if pending is not None and math.hypot(x - pending.x, y - pending.y) <= reach:
             return self._confirm(grid_at, scale_tracker, pending, x, y)
+        if near_only and (math.hypot(x - cloud[0], y - cloud[1])
+                          < cfg.doubt_mover_off_lengths * scale_tracker.target_length_px):
+            return None  # a new mover on the target as the cloud holds it: nothing to correct
         # the scale: the blob spans the target and its motion smear (and blur), so at most the
         # blob's, the matcher picking among the ratios below it; unless the blob is a part of the
         # target (the motion of its uniform middle unseen): a target that left the view comes back
