@@ -146,7 +146,8 @@ def test_the_trace_follows_a_synthetic_scene_from_its_own_truth():
     assert prec is not None and int(prec.group(2)) == 96 and 0.9 < float(prec.group(1)) < 1.0
     restarts = re.findall(r"^  restart f(\d+) on a (mover|tile)( in doubt)?: at .*?, (inside|off) the truth's box, "
                           r"(\d+) px from its centre; score ([\d.]+), held before ([\d.]+) median, ([\d.]+) 10th "
-                          r"percentile \((\d+) frames\); scale ([\d.]+), the truth's ([\d.]+) \(x([\d.]+)\)$", out, re.M)
+                          r"percentile \((\d+) frames\); scale ([\d.]+), the truth's ([\d.]+) \(x([\d.]+)\)$",
+                          out, re.M)
     assert len(restarts) == 1 and len(re.findall(r"^  restart ", out, re.M)) == 1
     frame, kind, doubt, where, off, score, median, p10, n, s, truth_s, ratio = restarts[0]
     assert 63 <= int(frame) <= 69 and kind == "mover" and not doubt and where == "inside" and int(off) < 5

@@ -5,9 +5,10 @@ A diagnostic for docs/real-footage.md (stop 40). It runs the in-process tracker 
 
 - for the frames in ``--frames A:B``, one row each: the MAP estimate and the truth's centre, the
   centre error (of the reported box's centre, as the benchmark scores it; the MAP's beside it where
-  the box is centred elsewhere, ``segment.centre_box``), p(V=1|Z), the box and the truth's size, the scale s and the matching factor k, the
-  estimate's own score, the target's own change of size measured from its pixels (``common.single_target.target_flow``:
-  change of log size, its standard deviation and the points tracked; ``-`` where not measured), and
+  the box is centred elsewhere, ``segment.centre_box``), p(V=1|Z), the box and the truth's size,
+  the scale s and the matching factor k, the estimate's own score, the target's own change of size
+  measured from its pixels (``common.single_target.target_flow``: change of log size, its standard
+  deviation and the points tracked; ``-`` where not measured), and
   with ``--movers`` on a searched frame the movers' test
   (:class:`common.single_target.reacquire.MoverGate`: the strongest mover, its z, the background
   boxes expected as strong, what the frame allows) and, on a frame the template's registration
@@ -63,7 +64,8 @@ def _searched(r) -> int:
 
 def _restart_row(i: int, det, in_doubt: bool, on_mover: bool, box, first_box, held: list[float]) -> str:
     """One restart: where, its score beside the held scores, its scale beside the truth's."""
-    head = f"  restart f{i} on a {'mover' if on_mover else 'tile'}{' in doubt' if in_doubt else ''}: at {det.x:.0f},{det.y:.0f}"
+    kind = ("mover" if on_mover else "tile") + (" in doubt" if in_doubt else "")
+    head = f"  restart f{i} on a {kind}: at {det.x:.0f},{det.y:.0f}"
     if box is None or not all(math.isfinite(v) for v in box):
         where, scale = "the target out of view", f"scale {det.scale:.2f}"
     else:
