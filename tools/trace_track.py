@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +63,7 @@ def _searched(r) -> int:
     return 0 if r is None else r.searches + r.doubt_searches
 
 
-def _restart_row(i: int, det, in_doubt: bool, on_mover: bool, box, first_box, held: list[float]) -> str:
+def _restart_row(i: int, det, in_doubt: bool, on_mover: bool, box, first_box, held) -> str:
     """One restart: where, its score beside the held scores, its scale beside the truth's."""
     kind = ("mover" if on_mover else "tile") + (" in doubt" if in_doubt else "")
     head = f"  restart f{i} on a {kind}: at {det.x:.0f},{det.y:.0f}"
@@ -76,7 +77,7 @@ def _restart_row(i: int, det, in_doubt: bool, on_mover: bool, box, first_box, he
         truth_s = math.sqrt(w * h / (first_box[2] * first_box[3]))
         scale = f"scale {det.scale:.2f}, the truth's {truth_s:.2f} (x{det.scale / truth_s:.2f})"
     if held:
-        last = np.asarray(held[-HELD_SCORES:])
+        last = np.asarray(held)
         scores = (f"score {det.score:.3f}, held before {np.median(last):.3f} median, "
                   f"{np.quantile(last, 0.1):.3f} 10th percentile ({len(last)} frames)")
     else:
@@ -113,7 +114,7 @@ def main() -> None:
     first_box = None
     stretches: list[list] = []
     hits = []
-    held_scores: list[float] = []  # the estimate's score on every frame the re-acquisition counted as held
+    held_scores: deque[float] = deque(maxlen=HELD_SCORES)  # the scores of the last frames counted as held
     restarts: list = []  # the detections the filter restarted on, this frame
 
     def recording(relocked):
@@ -135,8 +136,8 @@ def main() -> None:
                 tracker.reacquirer.relocked = recording(tracker.reacquirer.relocked)
         measured.clear()
         restarts.clear()
-        lost_before = tracker.reacquirer is not None and tracker.reacquirer.lost
-        movers_before = tracker.reacquirer.mover_detections if tracker.reacquirer is not None else 0
+        r = tracker.reacquirer
+        movers_before, doubt_before = (r.mover_detections, r.doubt_detections) if r is not None else (0, 0)
         searches = _searched(tracker.reacquirer)
         doubt = tracker.reacquirer.doubt_searches if tracker.reacquirer is not None else 0
         reg = tracker.registrar
@@ -180,8 +181,8 @@ def main() -> None:
                       f"{g.false_alarms:.3g}, allowed {g.allowed:.3g} ({'passes' if g.false_alarms <= g.allowed else 'fails'})"))
         if a.restarts:
             for det in restarts:
-                print(_restart_row(i, det, not lost_before, tracker.reacquirer.mover_detections > movers_before,
-                                   box, first_box, held_scores))
+                print(_restart_row(i, det, tracker.reacquirer.doubt_detections > doubt_before,
+                                   tracker.reacquirer.mover_detections > movers_before, box, first_box, held_scores))
         if tracker.reacquirer is not None and tracker.reacquirer.held and state.score is not None:
             held_scores.append(float(state.score))
     print(f"{Path(a.sequence).name} seed {a.seed}: stretches")
