@@ -3,6 +3,7 @@ event sequences of common/scene/events.py (real-footage profile: no homography, 
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -15,6 +16,7 @@ from common.detector.resample import quantise_factor
 from common.single_target.reacquire import (Detection, MoverGate, Reacquirer, acceptance_threshold, background_boxes,
                                             tail_probability)
 from common.single_target.runner import Tracker
+from common.tracking.likelihood import beta_by_moments
 from common.scene.events import ExitSource, ZoomSource
 from common.settings import ReacquisitionSettings, profile_for
 from common.tracking.state import Estimate, TrackState
@@ -1046,6 +1048,26 @@ def test_acceptance_threshold_is_the_background_quantile():
     busy = rng.beta(8.0, 6.0, 500)
     assert r._threshold(0.1, calm) == pytest.approx(acceptance_threshold(0.05, 0.1, 500, (0.25, 8.08)), rel=0.05)
     assert r._threshold(0.1, busy) > r._threshold(0.1, calm) + 0.05
+
+
+def test_a_tile_with_too_few_candidates_to_measure_its_background_detects_nothing():
+    """A tile's own candidates (less their top 5 percent) say how high this frame's background scores;
+    fewer than 20 say nothing, and the calibration scene's Beta alone would pass a real background (a
+    scale whose footprint fits only about the frame's middle: uav123-car16's 9-candidate tile at scale
+    11 restarted the filter 370 px off the car). Known answers at the boundary: 22 candidates leave 20
+    to fit, 21 leave 19."""
+    r = Reacquirer(ReacquisitionSettings(enabled=True, false_alarms_per_s=0.05), (0.25, 8.08), (640, 480))
+    maxima = np.random.default_rng(1).beta(0.25, 8.08, 22)
+    maxima[0] = 0.75  # the target, or a road the calibration's Beta cannot explain
+    calibration = acceptance_threshold(0.05, 0.1, 22, (0.25, 8.08))
+    assert calibration < 0.75  # the calibration's Beta alone would accept it
+    assert r._threshold(0.1, maxima) == pytest.approx(max(calibration, acceptance_threshold(
+        0.05, 0.1, 22, beta_by_moments(np.sort(np.clip(maxima, 1e-6, 1 - 1e-6))[:20]), 1)))
+    assert r._threshold(0.1, maxima) < 0.75  # measured, and the candidate passes
+    assert r._threshold(0.1, maxima[:21]) == math.inf
+    assert r._threshold(0.1, maxima[:9]) == math.inf
+    fixed = Reacquirer(ReacquisitionSettings(enabled=True, min_score=0.6), (0.25, 8.08), (640, 480))
+    assert fixed._threshold(0.1, maxima[:9]) == 0.6  # a fixed acceptance score is the user's own
 
 
 def test_the_searches_refinements_are_matched_on_the_crop_of_their_coarse_query():

@@ -77,8 +77,9 @@ confident detection to restart the filter on.
   ``false_alarms_per_s`` false detections a second over all the hypotheses searched (Bonferroni
   over the candidates), the background being the higher of the likelihood's Beta fit for "no
   target" (over the 12 independent orientations of the P-matrix rows) and a Beta fitted to
-  the tile's own candidates (see ``Reacquirer._threshold``). It must pass again on the next
-  frame, within a target length, before the filter is restarted on it.
+  the tile's own candidates (see ``Reacquirer._threshold``; a tile with too few candidates to
+  fit detects nothing). It must pass again on the next frame, within a target length, before the
+  filter is restarted on it.
 """
 
 from __future__ import annotations
@@ -193,6 +194,11 @@ _REFINE_REACH = 2 * sum(_REFINE_STAGES)
 """How far the refinement reaches beyond a coarse candidate, in coarse grid steps: a coarse query
 matched on its points' box grown by this much leaves the refinement inside the same crop, so the
 three queries share one preparation."""
+
+
+_MIN_BACKGROUND = 20
+"""Fewest candidates of a tile (less its top 5 percent) that measure the frame's own background
+(:meth:`Reacquirer._threshold`): a tile with fewer detects nothing."""
 
 
 def _grid_5x5() -> np.ndarray:
@@ -701,7 +707,10 @@ class Reacquirer:
         candidates themselves, less their top 5 percent (the target, if it is there), each at
         ``false_alarms_per_s`` over the hypotheses searched. Real backgrounds (roads, kerbs,
         buildings) score far above the calibration scene's, and this frame's own candidates say by
-        how much."""
+        how much. With fewer than ``_MIN_BACKGROUND`` of them (at a scale whose footprint fits only
+        about the frame's middle) they say nothing, and the calibration's Beta alone lets the real
+        background through: no score is accepted (uav123-car16 after its close pass, seeds 0 and 1: a
+        tile of 9 candidates at scale 11 restarted the filter 370 px off the car)."""
         cfg = self.cfg
         if cfg.min_score is not None:
             return float(cfg.min_score)
@@ -709,7 +718,9 @@ class Reacquirer:
         n = max(len(maxima), 1)
         thr = acceptance_threshold(cfg.false_alarms_per_s, dt, n, self.background)
         bg = np.sort(np.clip(maxima, 1e-6, 1 - 1e-6))[: max(int(0.95 * len(maxima)), 0)]
-        fit = beta_by_moments(bg) if len(bg) >= 20 else None
+        if len(bg) < _MIN_BACKGROUND:
+            return math.inf  # too few to say how high this frame's background scores: no detection
+        fit = beta_by_moments(bg)
         if fit is not None:
             thr = max(thr, acceptance_threshold(cfg.false_alarms_per_s, dt, n, fit, 1))
         return thr
