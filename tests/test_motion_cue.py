@@ -308,20 +308,3 @@ def test_ground_just_come_into_view_is_no_evidence_of_calm():
     assert len(z) * tail_probability(z, top, far, 0.9) > 0.1 and z[top] < 6.0
     blob = cue.blob_scale(tuple(xy[top]))
     assert blob is None or blob < 3.0
-
-
-def test_boxes_fit_says_at_which_scales_the_frame_holds_movers_boxes():
-    """``boxes_fit`` is the geometry of :meth:`movers`'s grid alone (boxes half a box apart, a box
-    length inside the edge, at least ``min_boxes``): over a ladder of scales it agrees with whether
-    ``movers`` finds boxes at all on a 320 x 240 frame whose ground both past frames saw, without
-    preparing anything. Known answer: 10 x 7 boxes at scale 8 (80 px, 40 apart, 80 in from each
-    edge) fit 5 x 3 = 15 < 16 on it."""
-    frames = scene(10, speed=5.0, contrast=40.0, pan=(0.0, 0.0))
-    cue = cue_after(frames)
-    verdicts = []
-    for s in 2.0 ** np.arange(-1, 6, 0.5):
-        fits = cue.boxes_fit(float(s), (W, H))
-        assert fits == (len(cue.movers(float(s))[1]) > 0), s
-        verdicts.append(fits)
-    assert verdicts[0] and not verdicts[-1]  # both answers occur on the ladder
-    assert cue.boxes_fit(7.0, (W, H)) and not cue.boxes_fit(8.0, (W, H))

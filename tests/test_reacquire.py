@@ -391,9 +391,6 @@ class _Movers:
     box_size = (20.0, 13.0)
     """The first box the cue was made for (``_Scale``'s 20 px target)."""
 
-    def boxes_fit(self, scale, size):
-        return True  # the fixed grid above at every scale
-
     def blob_scale(self, xy):
         return 1.0
 
@@ -481,9 +478,6 @@ class _NoMovers:
 
     def movers(self, s):
         return np.zeros((0, 2)), np.zeros(0)
-
-    def boxes_fit(self, scale, size):
-        return True  # the frame would hold them: it is the history that is short
 
     def blob_scale(self, xy):
         return None
@@ -1041,40 +1035,6 @@ def test_sweep_scales_alternate_about_the_last_held_one():
         seen.append(r.sweep_scale(lo=0.9, hi=2.5))
         r._sweep += 1
     assert seen == [1.0, 2.0, 1.0, 2.0]  # 0.5, 0.25 and 4 are outside the range, skipped
-
-
-def test_the_movers_sweep_skips_the_scales_at_which_the_frame_holds_no_boxes():
-    """Once lost, the movers are tested at one scale of the sweep a frame (s0, the last held scale,
-    every other frame, s0 / r, s0 * r, ... between). A scale at which the frame holds too few of the
-    cue's boxes (``MotionCue.boxes_fit``) finds no mover, so the sweep passes it, s0's own frames too.
-    Known answer: s0 = 8 with r = 2 and boxes fitting up to 4: 4, 2, 1, 0.5, ... every frame (before,
-    every other frame asked at 8 and found nothing, as car16's after its close pass at 11.8)."""
-    cfg = ReacquisitionSettings(enabled=True, lost_after_s=0.0, scale_ratio=2.0, scale_steps=4)
-    r = Reacquirer(cfg, (0.25, 8.08), (640, 480))
-    r.last_scale = 8.0
-
-    class Asked(_NoMovers):
-        def __init__(self):
-            self.scales = []
-
-        def movers(self, s):
-            self.scales.append(s)
-            return super().movers(s)
-
-        def boxes_fit(self, scale, size):
-            return scale <= 4.0 * (1 + 1e-9)
-
-    cue = Asked()
-    for _ in range(6):
-        assert r._search_movers(0.1, None, _Scale, cue) is None
-    assert cue.scales == [4.0, 2.0, 1.0, 0.5, 4.0, 2.0]
-    # without a predicate (the tiles' sweep) the sequence is as before
-    r._sweep = 0
-    seen = []
-    for _ in range(4):
-        seen.append(r.sweep_scale())
-        r._sweep += 1
-    assert seen == [8.0, 4.0, 8.0, 16.0]
 
 
 def test_acceptance_threshold_is_the_background_quantile():

@@ -147,17 +147,6 @@ class MotionCue:
             return empty
         return self._grid, self.z_scores(self._grid)
 
-    def boxes_fit(self, scale: float, size: tuple[int, int]) -> bool:
-        """Whether a ``size`` = (width, height) frame holds ``min_boxes`` target-sized boxes at ``scale``
-        on :meth:`movers`'s grid (half a box apart, a box length inside the edge), before the boxes
-        off the ground both past frames saw are dropped: where it does not, :meth:`movers` finds none."""
-        bw, bh = max(self.box_size[0] * scale, 2.0), max(self.box_size[1] * scale, 2.0)
-        inset = max(bw, bh)  # the margin movers() keeps, at least half a box
-        step = max(bw, bh) / 2
-        nx = len(np.arange(inset, size[0] - inset + 1e-9, step))
-        ny = len(np.arange(inset, size[1] - inset + 1e-9, step))
-        return nx * ny >= self.cfg.min_boxes
-
     def _past_pair(self, time: float):
         """The frames about ``baseline_s`` and twice that before ``time``; before the history holds
         that much, the longest whole baseline it holds (from the third frame on)."""

@@ -29,8 +29,7 @@ confident detection to restart the filter on.
   leaves the budget to the next.
 - **Movers** (where the tracker has the moving-target cue, :mod:`common.single_target.motion_cue`):
   before the tiles, every searched frame, the whole frame's target-sized boxes are scored by their
-  motion energy (cheap: box sums of one difference image), at one scale of the sweep per frame
-  (passing the scales at which the frame holds too few boxes, ``MotionCue.boxes_fit``).
+  motion energy (cheap: box sums of one difference image), at one scale of the sweep per frame.
   The strongest mover is a candidate when the background could not produce it: the boxes away
   from it (beyond a box length, and off its moving blob, :func:`background_boxes`: in boxes
   smaller than the target, the target's other parts are not background) give the background's
@@ -386,23 +385,18 @@ class Reacquirer:
         s, self._sweep = self._scale_of_sweep(self._sweep, lo, hi)
         return s
 
-    def _scale_of_sweep(self, n: int, lo: float, hi: float, usable=None) -> tuple[float, int]:
+    def _scale_of_sweep(self, n: int, lo: float, hi: float) -> tuple[float, int]:
         """(scale, sweep) of sweep ``n`` (see :meth:`sweep_scale`): the sweep moves on past ratios
-        outside [lo, hi], and past scales for which ``usable(s)`` is False (None: all are), s0's
-        sweeps included (to the next ratio)."""
+        outside [lo, hi]."""
         count = 4 * self.cfg.scale_steps
-        for _ in range(2 * max(count, 1)):
+        for _ in range(max(count, 1)):
             i = n % count if count else 0
             if i % 2 == 0:
-                s = float(np.clip(self.last_scale, lo, hi))
-                if usable is None or usable(s):
-                    return s, n
-                n += 1  # s0 cannot be searched: the next ratio
-                continue
+                return float(np.clip(self.last_scale, lo, hi)), n
             m = i // 2  # 0, 1, 2, ...: ratios -1, +1, -2, +2, ...
             j = (m // 2 + 1) * (-1 if m % 2 == 0 else 1)
             s = self.last_scale * self.cfg.scale_ratio ** j
-            if lo * (1 - 1e-9) <= s <= hi * (1 + 1e-9) and (usable is None or usable(s)):
+            if lo * (1 - 1e-9) <= s <= hi * (1 + 1e-9):
                 return s, n
             n += 2  # the next ratio
         return float(np.clip(self.last_scale, lo, hi)), n
@@ -519,12 +513,8 @@ class Reacquirer:
         elif near_only:
             s = float(scale_tracker.s)  # in doubt: the target is where and as large as it was held
         else:
-            # one scale a frame, the movers covering the frame at once; not a scale at which the frame
-            # holds too few boxes to test a mover (a large last held scale: car16 after its pass spent
-            # every other frame at such a scale, finding nothing)
-            s, n = self._scale_of_sweep(self._mover_sweep, *scale_tracker.scale_range(),
-                                        usable=lambda v: movers.boxes_fit(v, self.size))
-            self._mover_sweep = n + 1
+            s, n = self._scale_of_sweep(self._mover_sweep, *scale_tracker.scale_range())
+            self._mover_sweep = n + 1  # one scale a frame: the movers cover the frame at once
         xy, z = movers.movers(s)
         if len(z) == 0:
             return None
