@@ -60,6 +60,7 @@ from scipy.stats import norm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import common.detector.resample as resample  # noqa: E402
+from common.evaluation.benchmark import score_boxes  # noqa: E402
 from common.settings import SegmentRegistration, profile_for  # noqa: E402
 from common.single_target import runner  # noqa: E402
 from common.single_target.adaptation import TemplateAdapter  # noqa: E402
@@ -405,15 +406,13 @@ def main() -> None:
         patch_segment_recentre(a.segment_recentre, a.segment_agree, a.segment_consistent)
     for seed in (int(s) for s in a.seeds.split(",")):
         tracker = runner.Tracker.start(frames[0], truth[0], apply_overrides(profile_for(src, seed=seed), a.overrides))
-        hits: dict[int, bool] = {}  # frame -> within 20 px, over the frames with a truth
-        for frame, box in zip(frames, truth):
-            b = tracker.step(frame).axis_aligned_box()  # the reported box, as the benchmark scores it
-            if box is not None and b is not None:
-                x, y, w, h = box
-                hits[frame.index] = math.hypot(b[0] + b[2] / 2 - (x + w / 2), b[1] + b[3] / 2 - (y + h / 2)) <= 20
-        per100 = [round(float(np.mean(v)), 2) for v in
-                  ([h for i, h in hits.items() if lo <= i < lo + 100] for lo in range(0, len(frames), 100)) if v]
-        print(f"{Path(a.sequence).name} seed {seed} p20 {np.mean(list(hits.values())):.3f} over {len(hits)} frames "
+        # the reported boxes, scored by the benchmark's own scorer (a frame without a box is a miss)
+        score = score_boxes([tracker.step(frame).axis_aligned_box() for frame in frames], truth)
+        visible = np.array([box is not None for box in truth])
+        hit = score.errors <= 20  # NaN (no box) is a miss
+        per100 = [round(float(hit[lo:lo + 100][visible[lo:lo + 100]].mean()), 2)
+                  for lo in range(0, len(frames), 100) if visible[lo:lo + 100].any()]
+        print(f"{Path(a.sequence).name} seed {seed} p20 {score.precision20:.3f} over {score.visible_frames} frames "
               f"per 100 frames {per100}", flush=True)
 
 
